@@ -1,0 +1,9 @@
+//! helmcap: facial performance capture from helmet-mounted stereo cameras.
+//!
+//! Layers, bottom up (a module may use only those above it in this list):
+//! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
+//! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
+//!   built-in synthetic actor.
+
+pub mod dataset;
+pub mod mesh;

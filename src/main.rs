@@ -1,0 +1,2 @@
+//! The `helmcap` command line.
+fn main() {}
