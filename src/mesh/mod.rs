@@ -192,6 +192,12 @@ impl Mesh {
                     b.saturating_sub(a)
                 )));
             }
+            if b > face_vertices.len() {
+                return Err(MeshError::Invalid(format!(
+                    "polygon {f} ends at corner {b}, past the {} corners",
+                    face_vertices.len()
+                )));
+            }
             let corners = &face_vertices[a..b];
             for &v in corners {
                 if v as usize >= nv {
@@ -439,6 +445,14 @@ mod tests {
         let mut nan = p;
         nan[1].x = f64::NAN;
         assert!(Mesh::new(nan, &[vec![0, 1, 2]], Vec::new(), None).is_err());
+    }
+
+    #[test]
+    fn rejects_offsets_past_the_corners() {
+        // A middle offset beyond the corner list used to panic on slicing.
+        let p = vec![Point3::origin(); 6];
+        let r = Mesh::from_flat(p, vec![], vec![0, 9, 6], (0..6).collect(), vec![], None, vec![]);
+        assert!(matches!(r, Err(MeshError::Invalid(_))), "{r:?}");
     }
 
     #[test]
