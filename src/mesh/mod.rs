@@ -19,6 +19,9 @@ pub mod topology;
 use nalgebra::{Point2, Point3};
 
 pub use geometry::{triangle_areas, triangle_normals, vertex_areas, vertex_normals, vertex_normals_of};
+pub use obj::{
+    read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
+};
 
 /// Errors from building, reading or writing a mesh.
 ///
