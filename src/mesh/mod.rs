@@ -22,6 +22,7 @@ pub use geometry::{triangle_areas, triangle_normals, vertex_areas, vertex_normal
 pub use obj::{
     read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
 };
+pub use ply::write_ply;
 
 /// Errors from building, reading or writing a mesh.
 ///
