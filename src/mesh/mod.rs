@@ -10,6 +10,7 @@
 //!
 //! Units are whatever the caller loaded; the dataset layer converts to millimetres.
 
+pub mod geodesic;
 pub mod geometry;
 pub mod laplacian;
 pub mod obj;
@@ -23,6 +24,8 @@ pub use obj::{
     read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
 };
 pub use ply::write_ply;
+pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
+pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
 
 /// Errors from building, reading or writing a mesh.
 ///
