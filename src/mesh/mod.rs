@@ -26,6 +26,10 @@ pub use obj::{
 pub use ply::write_ply;
 pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
 pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
+pub use laplacian::{
+    MassKind, cotangent_laplacian, cotangent_laplacian_of, mass_matrix, mass_matrix_of,
+    uniform_laplacian,
+};
 
 /// Errors from building, reading or writing a mesh.
 ///
