@@ -19,17 +19,19 @@ pub mod topology;
 
 use nalgebra::{Point2, Point3};
 
-pub use geometry::{triangle_areas, triangle_normals, vertex_areas, vertex_normals, vertex_normals_of};
+pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
+pub use geometry::{
+    triangle_areas, triangle_normals, vertex_areas, vertex_normals, vertex_normals_of,
+};
+pub use laplacian::{
+    MassKind, cotangent_laplacian, cotangent_laplacian_of, mass_matrix, mass_matrix_of,
+    uniform_laplacian,
+};
 pub use obj::{
     read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
 };
 pub use ply::write_ply;
 pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
-pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
-pub use laplacian::{
-    MassKind, cotangent_laplacian, cotangent_laplacian_of, mass_matrix, mass_matrix_of,
-    uniform_laplacian,
-};
 
 /// Errors from building, reading or writing a mesh.
 ///
@@ -176,7 +178,9 @@ impl Mesh {
         if face_offsets.first() != Some(&0)
             || face_offsets.last().map(|&x| x as usize) != Some(face_vertices.len())
         {
-            return Err(MeshError::Invalid("polygon offsets do not cover the corners".into()));
+            return Err(MeshError::Invalid(
+                "polygon offsets do not cover the corners".into(),
+            ));
         }
         if !face_uvs.is_empty() && face_uvs.len() != face_vertices.len() {
             return Err(MeshError::Invalid(format!(
@@ -185,10 +189,18 @@ impl Mesh {
                 face_uvs.len()
             )));
         }
-        if let Some(v) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
-            return Err(MeshError::Invalid(format!("vertex {v} has a non-finite coordinate")));
+        if let Some(v) = positions
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(MeshError::Invalid(format!(
+                "vertex {v} has a non-finite coordinate"
+            )));
         }
-        if let Some(t) = uvs.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
+        if let Some(t) = uvs
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(MeshError::Invalid(format!(
                 "texture coordinate {t} is not finite"
             )));
@@ -303,8 +315,13 @@ impl Mesh {
                 self.positions.len()
             )));
         }
-        if let Some(v) = positions.iter().position(|p| !p.coords.iter().all(|c| c.is_finite())) {
-            return Err(MeshError::Invalid(format!("vertex {v} has a non-finite coordinate")));
+        if let Some(v) = positions
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(MeshError::Invalid(format!(
+                "vertex {v} has a non-finite coordinate"
+            )));
         }
         Ok(Mesh {
             positions,
@@ -384,9 +401,11 @@ impl Mesh {
     /// Axis-aligned bounding box `(min, max)` of the positions; `None` for an empty mesh.
     pub fn bounding_box(&self) -> Option<(Point3<f64>, Point3<f64>)> {
         let first = *self.positions.first()?;
-        Some(self.positions.iter().fold((first, first), |(lo, hi), p| {
-            (lo.inf(p), hi.sup(p))
-        }))
+        Some(
+            self.positions
+                .iter()
+                .fold((first, first), |(lo, hi), p| (lo.inf(p), hi.sup(p))),
+        )
     }
 }
 
@@ -462,7 +481,15 @@ mod tests {
     fn rejects_offsets_past_the_corners() {
         // A middle offset beyond the corner list used to panic on slicing.
         let p = vec![Point3::origin(); 6];
-        let r = Mesh::from_flat(p, vec![], vec![0, 9, 6], (0..6).collect(), vec![], None, vec![]);
+        let r = Mesh::from_flat(
+            p,
+            vec![],
+            vec![0, 9, 6],
+            (0..6).collect(),
+            vec![],
+            None,
+            vec![],
+        );
         assert!(matches!(r, Err(MeshError::Invalid(_))), "{r:?}");
     }
 
