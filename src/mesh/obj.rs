@@ -285,18 +285,23 @@ pub(crate) fn write_atomically(
     Ok(())
 }
 
-/// Splits OBJ bytes into `(1-based line number, line without comment)`, skipping a
-/// UTF-8 byte-order mark. `\r` before `\n` is left in place: it is ASCII whitespace, so
-/// tokenizing drops it.
+/// Splits OBJ bytes into `(1-based line number, line)`, skipping a UTF-8 byte-order
+/// mark. `\r` before `\n` is left in place: it is ASCII whitespace, so tokenizing drops
+/// it.
 fn lines(bytes: &[u8]) -> impl Iterator<Item = (usize, &[u8])> {
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-    bytes.split(|&b| b == b'\n').enumerate().map(|(i, line)| {
-        let line = match line.iter().position(|&b| b == b'#') {
-            Some(c) => &line[..c],
-            None => line,
-        };
-        (i + 1, line)
-    })
+    bytes
+        .split(|&b| b == b'\n')
+        .enumerate()
+        .map(|(i, line)| (i + 1, line))
+}
+
+/// A line without its comment (`#` to the end of the line).
+fn strip_comment(line: &[u8]) -> &[u8] {
+    match line.iter().position(|&b| b == b'#') {
+        Some(c) => &line[..c],
+        None => line,
+    }
 }
 
 /// Whitespace-separated tokens of a line.
@@ -350,10 +355,17 @@ fn parse_positions(bytes: &[u8], name: &str) -> Result<Vec<Point3<f64>>, MeshErr
     // A face-model OBJ spends roughly 90 bytes per vertex on `v`, `vt` and `f` lines.
     let mut positions = Vec::with_capacity(bytes.len() / 96);
     for (line_no, line) in lines(bytes) {
-        let mut toks = tokens(line);
-        if toks.next() != Some(b"v".as_slice()) {
+        // Skip every other line on its first bytes, before looking for a comment. A `v`
+        // keyword ends at whitespace, a comment or the end of the line.
+        let line = line.trim_ascii_start();
+        let is_v = line.first() == Some(&b'v')
+            && line
+                .get(1)
+                .is_none_or(|&b| b.is_ascii_whitespace() || b == b'#');
+        if !is_v {
             continue;
         }
+        let mut toks = tokens(strip_comment(line)).skip(1);
         let p = parse_vertex(&mut toks).map_err(|message| MeshError::Parse {
             path: name.to_string(),
             line: line_no,
@@ -469,6 +481,7 @@ impl<'a> ObjParser<'a> {
         self.face_uvs.reserve(4 * guess);
 
         for (line_no, line) in lines(bytes) {
+            let line = strip_comment(line);
             let mut toks = tokens(line);
             let Some(keyword) = toks.next() else {
                 continue;
@@ -1048,6 +1061,20 @@ mod tests {
             read_obj_positions(&path),
             Err(MeshError::Empty { .. })
         ));
+        // A bare `v` keyword is as malformed here as in the full reader.
+        for text in ["v 1 2 3\nv", "v 1 2 3\nv# c\n", "v 1 2 3\n  v\r\n"] {
+            std::fs::write(&path, text).unwrap();
+            let err = read_obj_positions(&path).unwrap_err();
+            assert!(
+                matches!(err, MeshError::Parse { line: 2, .. }),
+                "{text:?}: {err}"
+            );
+            let err = read_obj_str(text, "s").unwrap_err();
+            assert!(
+                matches!(err, MeshError::Parse { line: 2, .. }),
+                "{text:?}: {err}"
+            );
+        }
     }
 
     /// A small mesh whose coordinates need all 17 significant digits, with seams,
@@ -1234,6 +1261,12 @@ mod tests {
             .filter(|p| p.extension().is_some_and(|e| e == "obj") && *p != neutral)
             .collect();
         all.sort();
+        // Every ICT file parses with the full reader and shares the neutral's polygons.
+        for p in &all {
+            let shape = read_obj(p).unwrap();
+            assert_eq!(shape.face_vertices, m.face_vertices, "{}", p.display());
+            assert_eq!(shape.positions, read_obj_positions(p).unwrap());
+        }
         let t_all = median(&|| {
             use rayon::prelude::*;
             read_obj(&neutral).unwrap();
