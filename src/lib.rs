@@ -5,5 +5,6 @@
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
 
+pub mod atomic_file;
 pub mod dataset;
 pub mod mesh;

@@ -1,1 +1,506 @@
-//! (being written)
+//! Marker layouts: where the painted dots sit on the neutral face, read from and written to
+//! the layout CSV, and generated automatically for a dataset.
+//!
+//! CSV contract: header `name,vertex,stabilize_weight`; one row per marker on a vertex of
+//! the neutral mesh; `stabilize_weight` (0..1, optional, default 0) is how much the marker
+//! counts for head stabilization.
+
+use std::collections::HashSet;
+use std::io::Write;
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use super::Dataset;
+use crate::atomic_file::write_atomically;
+use crate::mesh::geodesic::update_edge_graph_distances;
+use crate::mesh::{Topology, vertex_normals};
+
+/// Errors from reading, writing or generating a marker layout.
+#[derive(Debug, thiserror::Error)]
+pub enum MarkerError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file involved.
+        path: String,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A line of the CSV is malformed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// The file involved.
+        path: String,
+        /// 1-based line number.
+        line: usize,
+        /// What was wrong.
+        message: String,
+    },
+    /// The layout does not fit the dataset, or generation is impossible.
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// One painted marker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Marker {
+    /// Unique name (the label in every output).
+    pub name: String,
+    /// Vertex of the neutral mesh the marker sits on.
+    pub vertex: u32,
+    /// Weight in head stabilization, 0 (ignored) to 1 (rigid with the skull).
+    pub stabilize_weight: f64,
+}
+
+/// An ordered set of markers with unique names and vertices.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MarkerLayout {
+    /// The markers, in file order.
+    pub markers: Vec<Marker>,
+}
+
+impl MarkerLayout {
+    /// Number of markers.
+    pub fn len(&self) -> usize {
+        self.markers.len()
+    }
+
+    /// Whether the layout has no markers.
+    pub fn is_empty(&self) -> bool {
+        self.markers.is_empty()
+    }
+
+    /// Index of the marker called `name`.
+    pub fn index_of(&self, name: &str) -> Option<usize> {
+        self.markers.iter().position(|m| m.name == name)
+    }
+
+    /// Reads a layout CSV.
+    ///
+    /// # Errors
+    /// [`MarkerError`] naming the file and line: missing or wrong header, a row with the
+    /// wrong number of fields, a vertex that is not a non-negative integer, a weight outside
+    /// 0..1 or not a number, a duplicate name or vertex, an empty layout.
+    pub fn read_csv(path: &Path) -> Result<Self, MarkerError> {
+        let text = std::fs::read_to_string(path).map_err(|source| MarkerError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::parse_csv(&text, &path.display().to_string())
+    }
+
+    /// Parses layout CSV text; `name` stands for the file in errors.
+    ///
+    /// # Errors
+    /// As [`MarkerLayout::read_csv`].
+    pub fn parse_csv(text: &str, name: &str) -> Result<Self, MarkerError> {
+        let err = |line: usize, message: String| MarkerError::Parse {
+            path: name.to_string(),
+            line,
+            message,
+        };
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+        let (hline, header) = lines.next().ok_or_else(|| {
+            err(
+                1,
+                "empty file: expected header name,vertex,stabilize_weight".into(),
+            )
+        })?;
+        let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+        if cols.len() < 2 || cols[0] != "name" || cols[1] != "vertex" {
+            return Err(err(
+                hline,
+                format!("header {header:?} should be name,vertex,stabilize_weight"),
+            ));
+        }
+        let weight_col = cols.iter().position(|c| *c == "stabilize_weight");
+        let mut markers = Vec::new();
+        let mut names = HashSet::new();
+        let mut vertices = HashSet::new();
+        for (line, row) in lines {
+            let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+            if fields.len() < 2 || fields.len() > cols.len() {
+                return Err(err(
+                    line,
+                    format!("expected {} fields, found {}", cols.len(), fields.len()),
+                ));
+            }
+            let name = fields[0];
+            if name.is_empty() {
+                return Err(err(line, "empty marker name".into()));
+            }
+            let vertex: u32 = fields[1].parse().map_err(|_| {
+                err(
+                    line,
+                    format!("vertex {:?} is not a vertex index", fields[1]),
+                )
+            })?;
+            let stabilize_weight = match weight_col.and_then(|c| fields.get(c)) {
+                None | Some(&"") => 0.0,
+                Some(w) => match w.parse::<f64>() {
+                    Ok(x) if (0.0..=1.0).contains(&x) => x,
+                    _ => {
+                        return Err(err(
+                            line,
+                            format!("stabilize_weight {w:?} is not a number in 0..1"),
+                        ));
+                    }
+                },
+            };
+            if !names.insert(name.to_string()) {
+                return Err(err(line, format!("marker name {name:?} appears twice")));
+            }
+            if !vertices.insert(vertex) {
+                return Err(err(line, format!("vertex {vertex} carries two markers")));
+            }
+            markers.push(Marker {
+                name: name.to_string(),
+                vertex,
+                stabilize_weight,
+            });
+        }
+        if markers.is_empty() {
+            return Err(err(hline, "the layout has no markers".into()));
+        }
+        Ok(MarkerLayout { markers })
+    }
+
+    /// Writes the layout CSV atomically.
+    ///
+    /// # Errors
+    /// [`MarkerError::Io`] when the file cannot be written.
+    pub fn write_csv(&self, path: &Path) -> Result<(), MarkerError> {
+        write_atomically(path, |w| {
+            writeln!(w, "name,vertex,stabilize_weight")?;
+            for m in &self.markers {
+                writeln!(w, "{},{},{}", m.name, m.vertex, m.stabilize_weight)?;
+            }
+            Ok(())
+        })
+        .map_err(|source| MarkerError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+    }
+
+    /// Checks that every marker sits on a face vertex of `dataset`.
+    ///
+    /// # Errors
+    /// [`MarkerError::Invalid`] naming the first marker that does not.
+    pub fn validate_for(&self, dataset: &Dataset) -> Result<(), MarkerError> {
+        for m in &self.markers {
+            if m.vertex as usize >= dataset.vertex_count() {
+                return Err(MarkerError::Invalid(format!(
+                    "marker {} is on vertex {} but dataset {} has {} vertices",
+                    m.name,
+                    m.vertex,
+                    dataset.name,
+                    dataset.vertex_count()
+                )));
+            }
+            if !dataset.is_face_vertex(m.vertex) {
+                return Err(MarkerError::Invalid(format!(
+                    "marker {} is on vertex {}, outside the face vertices {}..{} of dataset {}",
+                    m.name,
+                    m.vertex,
+                    dataset.face_vertices.start(),
+                    dataset.face_vertices.end(),
+                    dataset.name
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Parameters of [`generate_layout`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LayoutParams {
+    /// Number of markers. Default 120 (a typical helmet-capture layout).
+    pub count: usize,
+    /// Smallest distance along the mesh from the edge of the face region (eyelid margins,
+    /// inner lips, the outer border of the face area), millimetres: dots cannot be painted
+    /// or tracked there. Default 5 mm.
+    pub min_border_distance_mm: f64,
+    /// Largest angle between a marker's normal and the forward axis (+z of the head frame,
+    /// toward the helmet cameras), degrees: dots facing away are not seen. Default 70°.
+    pub max_view_angle_deg: f64,
+    /// Quantile over the dataset's shapes of a vertex's displacement that measures how much
+    /// it moves with expression. 0.75 means "stays put in three expressions out of four",
+    /// which keeps forehead markers (moved only by brow shapes) stable. Default 0.75.
+    pub stabilize_quantile: f64,
+    /// Motion scale σ of the stabilization weight `w = exp(−(m/σ)²)`, millimetres; weights
+    /// under 0.05 become 0. Default 0.5 mm.
+    pub stabilize_scale_mm: f64,
+}
+
+impl Default for LayoutParams {
+    fn default() -> Self {
+        Self {
+            count: 120,
+            min_border_distance_mm: 5.0,
+            max_view_angle_deg: 70.0,
+            stabilize_quantile: 0.75,
+            stabilize_scale_mm: 0.5,
+        }
+    }
+}
+
+impl LayoutParams {
+    /// Checks every field's range.
+    ///
+    /// # Errors
+    /// [`MarkerError::Invalid`] naming the field.
+    pub fn validate(&self) -> Result<(), MarkerError> {
+        let bad =
+            |f: &str, v: String| Err(MarkerError::Invalid(format!("{f} = {v} is out of range")));
+        if self.count == 0 {
+            return bad("count", "0".into());
+        }
+        if !(self.min_border_distance_mm >= 0.0 && self.min_border_distance_mm.is_finite()) {
+            return bad(
+                "min_border_distance_mm",
+                self.min_border_distance_mm.to_string(),
+            );
+        }
+        if !(self.max_view_angle_deg > 0.0 && self.max_view_angle_deg <= 180.0) {
+            return bad("max_view_angle_deg", self.max_view_angle_deg.to_string());
+        }
+        if !(0.0..=1.0).contains(&self.stabilize_quantile) {
+            return bad("stabilize_quantile", self.stabilize_quantile.to_string());
+        }
+        if !(self.stabilize_scale_mm > 0.0 && self.stabilize_scale_mm.is_finite()) {
+            return bad("stabilize_scale_mm", self.stabilize_scale_mm.to_string());
+        }
+        Ok(())
+    }
+}
+
+/// Vertices where a marker may be painted: face vertices used by a triangle, at least
+/// `min_border_distance_mm` along the mesh from the face region's border, facing the
+/// cameras within `max_view_angle_deg`. Returned ascending.
+///
+/// The face region's border is every face vertex on a mesh boundary edge or joined by an
+/// edge to a non-face vertex: eyelid margins, the lip line (or where the lips turn into the
+/// mouth socket), and the outer border of the face area.
+pub fn paintable_vertices(
+    dataset: &Dataset,
+    topology: &Topology,
+    params: &LayoutParams,
+) -> Vec<u32> {
+    let mesh = &dataset.neutral;
+    let n = mesh.vertex_count();
+    let mut used = vec![false; n];
+    for t in &mesh.triangles {
+        for &v in t {
+            used[v as usize] = true;
+        }
+    }
+    let on_boundary = topology.boundary_vertex_mask();
+    let mut border = Vec::new();
+    for v in dataset.face_vertex_indices() {
+        if !used[v] {
+            continue;
+        }
+        let on_border = on_boundary[v]
+            || topology
+                .neighbors(v as u32)
+                .iter()
+                .any(|&u| !dataset.is_face_vertex(u));
+        if on_border {
+            border.push(v as u32);
+        }
+    }
+    let mut dist = vec![f64::INFINITY; n];
+    for &b in &border {
+        update_edge_graph_distances(mesh, topology, b, &mut dist);
+    }
+    let normals = vertex_normals(mesh);
+    let cos_max = params.max_view_angle_deg.to_radians().cos();
+    let forward = Vector3::z();
+    dataset
+        .face_vertex_indices()
+        .filter(|&v| {
+            used[v]
+                && dist[v] >= params.min_border_distance_mm
+                && normals[v].dot(&forward) >= cos_max
+        })
+        .map(|v| v as u32)
+        .collect()
+}
+
+/// Generates a marker layout for `dataset`: `params.count` markers spread evenly over the
+/// paintable face (see [`paintable_vertices`]) by farthest-point sampling with distances
+/// along the mesh edges, each weighted for stabilization by how little it moves across the
+/// dataset's shapes.
+///
+/// Deterministic: sampling starts at the paintable vertex nearest the paintable area's
+/// centroid and ties go to the lower vertex index. Markers are named `M001`, `M002`, ...
+/// from the top of the face down (then from the actor's right to left).
+///
+/// # Errors
+/// [`MarkerError::Invalid`] when `params` is invalid or fewer than `params.count` vertices
+/// are paintable.
+pub fn generate_layout(
+    dataset: &Dataset,
+    params: &LayoutParams,
+) -> Result<MarkerLayout, MarkerError> {
+    params.validate()?;
+    let mesh = &dataset.neutral;
+    let topology = Topology::new(mesh);
+    let candidates = paintable_vertices(dataset, &topology, params);
+    if candidates.len() < params.count {
+        return Err(MarkerError::Invalid(format!(
+            "only {} paintable vertices in dataset {} for {} markers (lower --count or \
+             --min-border-distance)",
+            candidates.len(),
+            dataset.name,
+            params.count
+        )));
+    }
+    let centroid = candidates
+        .iter()
+        .map(|&v| mesh.positions[v as usize].coords)
+        .sum::<Vector3<f64>>()
+        / candidates.len() as f64;
+    let first = candidates
+        .iter()
+        .copied()
+        .min_by(|&a, &b| {
+            let da = (mesh.positions[a as usize].coords - centroid).norm_squared();
+            let db = (mesh.positions[b as usize].coords - centroid).norm_squared();
+            da.total_cmp(&db).then(a.cmp(&b))
+        })
+        .ok_or_else(|| MarkerError::Invalid("no paintable vertex".into()))?;
+    let mut chosen = vec![first];
+    let mut dist = vec![f64::INFINITY; mesh.vertex_count()];
+    update_edge_graph_distances(mesh, &topology, first, &mut dist);
+    while chosen.len() < params.count {
+        // Farthest candidate from everything chosen; unreachable candidates (another
+        // component) count as farthest, so every component gets markers.
+        let mut best = None;
+        let mut best_d = -1.0;
+        for &c in &candidates {
+            let d = dist[c as usize];
+            if d > best_d {
+                best_d = d;
+                best = Some(c);
+            }
+        }
+        let Some(next) = best.filter(|_| best_d > 0.0) else {
+            break;
+        };
+        chosen.push(next);
+        update_edge_graph_distances(mesh, &topology, next, &mut dist);
+    }
+
+    let motion = vertex_motion(dataset, params.stabilize_quantile);
+    let mut markers: Vec<(u32, f64)> = chosen
+        .into_iter()
+        .map(|v| {
+            let m = motion[v as usize];
+            let w = (-(m / params.stabilize_scale_mm).powi(2)).exp();
+            let w = if w < 0.05 {
+                0.0
+            } else {
+                (w * 100.0).round() / 100.0
+            };
+            (v, w)
+        })
+        .collect();
+    markers.sort_by(|a, b| {
+        let pa = mesh.positions[a.0 as usize];
+        let pb = mesh.positions[b.0 as usize];
+        pb.y.total_cmp(&pa.y).then(pa.x.total_cmp(&pb.x))
+    });
+    Ok(MarkerLayout {
+        markers: markers
+            .into_iter()
+            .enumerate()
+            .map(|(i, (vertex, stabilize_weight))| Marker {
+                name: format!("M{:03}", i + 1),
+                vertex,
+                stabilize_weight,
+            })
+            .collect(),
+    })
+}
+
+/// How much each vertex moves with expression: the `quantile` over the dataset's shapes of
+/// its displacement from the neutral, millimetres (#V). Zero for a dataset without shapes.
+pub fn vertex_motion(dataset: &Dataset, quantile: f64) -> Vec<f64> {
+    let n = dataset.vertex_count();
+    let k = dataset.shapes.len();
+    if k == 0 {
+        return vec![0.0; n];
+    }
+    let idx = ((k - 1) as f64 * quantile).round() as usize;
+    let mut d = vec![0.0; k];
+    (0..n)
+        .map(|v| {
+            for (s, shape) in dataset.shapes.iter().enumerate() {
+                d[s] = (shape.positions[v] - dataset.neutral.positions[v]).norm();
+            }
+            let (_, x, _) = d.select_nth_unstable_by(idx.min(k - 1), f64::total_cmp);
+            *x
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_round_trip_and_errors() {
+        let text = "name,vertex,stabilize_weight\nA,3,0.5\nB,7,\nC,9,1\n";
+        let l = MarkerLayout::parse_csv(text, "t.csv").unwrap();
+        assert_eq!(l.len(), 3);
+        assert_eq!(l.markers[1].stabilize_weight, 0.0);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.csv");
+        l.write_csv(&p).unwrap();
+        assert_eq!(MarkerLayout::read_csv(&p).unwrap(), l);
+
+        let no_weight = MarkerLayout::parse_csv("name,vertex\nA,1\n", "t").unwrap();
+        assert_eq!(no_weight.markers[0].stabilize_weight, 0.0);
+
+        for (bad, line, what) in [
+            ("", 1, "empty"),
+            ("vertex,name\nA,1\n", 1, "header"),
+            ("name,vertex\nA,x\n", 2, "vertex"),
+            ("name,vertex,stabilize_weight\nA,1,1.5\n", 2, "0..1"),
+            ("name,vertex,stabilize_weight\nA,1,nan\n", 2, "0..1"),
+            ("name,vertex\nA,1\nA,2\n", 3, "twice"),
+            ("name,vertex\nA,1\nB,1\n", 3, "two markers"),
+            ("name,vertex\n", 1, "no markers"),
+        ] {
+            let e = MarkerLayout::parse_csv(bad, "t.csv").unwrap_err();
+            let msg = e.to_string();
+            assert!(msg.contains(&format!("t.csv:{line}:")), "{msg}");
+            assert!(msg.contains(what), "{msg} should mention {what}");
+        }
+    }
+
+    #[test]
+    fn params_are_validated() {
+        assert!(LayoutParams::default().validate().is_ok());
+        let p = LayoutParams {
+            stabilize_scale_mm: 0.0,
+            ..Default::default()
+        };
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("stabilize_scale_mm")
+        );
+    }
+}

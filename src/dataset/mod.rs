@@ -13,12 +13,14 @@ pub mod cache;
 pub mod manifest;
 pub mod markers;
 
+pub use manifest::{DatasetError, LoadOptions, Manifest, Units, load_dataset, write_dataset};
+pub use markers::{Marker, MarkerLayout};
+
 use std::ops::RangeInclusive;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 
 use crate::mesh::Mesh;
-
 
 /// One shape of the dataset: the actor's face in one expression, in the neutral's topology.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

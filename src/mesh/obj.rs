@@ -34,10 +34,9 @@
 //! bit-identically. Files are written atomically: to a temporary file in the target's
 //! directory, flushed to disk, then renamed over the target.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{self, BufWriter, Write};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::path::Path;
 
 use nalgebra::{Point2, Point3};
 
@@ -212,27 +211,7 @@ fn write_body<W: Write>(w: &mut W, mesh: &Mesh, positions: &[Point3<f64>]) -> io
     Ok(())
 }
 
-/// Distinguishes the temporary files of concurrent writes within one process.
-static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// Removes the temporary file unless the write completed.
-struct TempGuard {
-    path: PathBuf,
-    keep: bool,
-}
-
-impl Drop for TempGuard {
-    fn drop(&mut self) {
-        if !self.keep {
-            // Best effort: the original error is what the caller needs to see.
-            let _ = std::fs::remove_file(&self.path);
-        }
-    }
-}
-
-/// Writes a file atomically: `write` fills a buffered temporary file created in `path`'s
-/// directory, which is flushed, synced to disk and renamed over `path`. On any failure
-/// the temporary file is removed and `path` is left as it was.
+/// Writes a file atomically (see [`crate::atomic_file::write_atomically`]).
 ///
 /// # Errors
 /// [`MeshError::Io`] naming `path`.
@@ -240,49 +219,10 @@ pub(crate) fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
 ) -> Result<(), MeshError> {
-    let io_err = |source: io::Error| MeshError::Io {
+    crate::atomic_file::write_atomically(path, write).map_err(|source| MeshError::Io {
         path: path.display().to_string(),
         source,
-    };
-    let file_name = path.file_name().ok_or_else(|| {
-        io_err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            "the path does not name a file",
-        ))
-    })?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let (file, temp_path) = loop {
-        let n = TEMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let mut temp_name = std::ffi::OsString::from(".");
-        temp_name.push(file_name);
-        temp_name.push(format!(".{}-{n}.tmp", std::process::id()));
-        let temp_path = dir.join(temp_name);
-        match OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&temp_path)
-        {
-            Ok(f) => break (f, temp_path),
-            // A leftover of a crashed process with a recycled id: try the next name.
-            Err(e) if e.kind() == io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(io_err(e)),
-        }
-    };
-    let mut guard = TempGuard {
-        path: temp_path,
-        keep: false,
-    };
-    let mut w = BufWriter::with_capacity(1 << 16, file);
-    write(&mut w).map_err(io_err)?;
-    let file = w.into_inner().map_err(|e| io_err(e.into_error()))?;
-    file.sync_all().map_err(io_err)?;
-    drop(file);
-    std::fs::rename(&guard.path, path).map_err(io_err)?;
-    guard.keep = true;
-    Ok(())
+    })
 }
 
 /// Splits OBJ bytes into `(1-based line number, line)`, skipping a UTF-8 byte-order

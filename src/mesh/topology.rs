@@ -187,6 +187,17 @@ impl Topology {
     pub fn is_closed(&self) -> bool {
         self.boundary_edges.is_empty()
     }
+
+    /// Per-vertex flag: whether the vertex lies on a boundary edge (#V).
+    pub fn boundary_vertex_mask(&self) -> Vec<bool> {
+        let mut mask = vec![false; self.vertex_count()];
+        for &e in &self.boundary_edges {
+            for v in self.edges[e as usize] {
+                mask[v as usize] = true;
+            }
+        }
+        mask
+    }
 }
 
 /// Sorted CSR adjacency from sorted unique edges: pushing both ends while walking the
