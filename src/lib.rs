@@ -4,7 +4,9 @@
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
+//! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
 
 pub mod atomic_file;
+pub mod bundles;
 pub mod dataset;
 pub mod mesh;
