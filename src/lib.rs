@@ -5,8 +5,10 @@
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
 //! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
+//! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
 
 pub mod atomic_file;
 pub mod bundles;
 pub mod dataset;
+pub mod lgi;
 pub mod mesh;

@@ -1,0 +1,232 @@
+//! Barycentric coordinates in tetrahedra and closest points on simplices (Cong et al. 2019
+//! §4: "we compute the convex barycentric weights (w_i, w_j, w_k, w_l) of the bundle
+//! position"; outside every tetrahedron, "the barycentric coordinates for the closest point
+//! on the associated tetrahedralized volume").
+
+use nalgebra::{Matrix3, Point3, Vector3};
+
+/// Barycentric coordinates of `x` in the tetrahedron `p`: `w` with `Σ w = 1` and
+/// `Σ w_n p_n = x`. `None` when the tetrahedron is degenerate (zero volume).
+pub fn tet_barycentric(p: &[Point3<f64>; 4], x: &Point3<f64>) -> Option<[f64; 4]> {
+    let m = Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
+    let inv = m.try_inverse()?;
+    let w = inv * (x - p[0]);
+    Some([1.0 - w.x - w.y - w.z, w.x, w.y, w.z])
+}
+
+/// The inverse edge matrix of a tetrahedron (`[p1−p0, p2−p0, p3−p0]⁻¹`), rows as `f32`,
+/// for a fast containment pre-test; `None` when degenerate.
+pub fn tet_inverse_f32(p: &[Point3<f64>; 4]) -> Option<[[f32; 3]; 3]> {
+    let m = Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
+    let inv = m.try_inverse()?;
+    let mut out = [[0f32; 3]; 3];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            *v = inv[(r, c)] as f32;
+        }
+    }
+    Some(out)
+}
+
+/// Closest point to `x` on the triangle `a b c` (Ericson, Real-Time Collision Detection
+/// §5.1.5), as barycentric weights `(wa, wb, wc)`, convex. Works for degenerate triangles.
+pub fn closest_on_triangle(
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    c: &Point3<f64>,
+    x: &Point3<f64>,
+) -> [f64; 3] {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = x - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return [1.0, 0.0, 0.0];
+    }
+    let bp = x - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return [0.0, 1.0, 0.0];
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return [1.0 - v, v, 0.0];
+    }
+    let cp = x - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return [0.0, 0.0, 1.0];
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return [1.0 - w, 0.0, w];
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return [0.0, 1.0 - w, w];
+    }
+    let denom = va + vb + vc;
+    if denom.abs() <= f64::MIN_POSITIVE {
+        // Degenerate (collinear) triangle: best of its three edges.
+        let edges = [(a, b, [0, 1]), (b, c, [1, 2]), (a, c, [0, 2])];
+        let mut best = [1.0, 0.0, 0.0];
+        let mut best_d = f64::INFINITY;
+        for (p, q, [i, j]) in edges {
+            let t = closest_on_segment(p, q, x);
+            let y = p + (q - p) * t;
+            let d = (y - x).norm_squared();
+            if d < best_d {
+                best_d = d;
+                best = [0.0; 3];
+                best[i] = 1.0 - t;
+                best[j] = t;
+            }
+        }
+        return best;
+    }
+    let v = vb / denom;
+    let w = vc / denom;
+    [1.0 - v - w, v, w]
+}
+
+/// Parameter `t ∈ [0, 1]` of the closest point `a + t (b − a)` to `x` on segment `a b`.
+pub fn closest_on_segment(a: &Point3<f64>, b: &Point3<f64>, x: &Point3<f64>) -> f64 {
+    let d = b - a;
+    let l2 = d.norm_squared();
+    if l2 <= 0.0 {
+        return 0.0;
+    }
+    ((x - a).dot(&d) / l2).clamp(0.0, 1.0)
+}
+
+/// Closest point to `x` on the simplex with `corners` (1 to 4 points), as convex weights
+/// over the corners (unused entries 0). Inside a tetrahedron the weights are `x`'s own
+/// barycentric coordinates.
+pub fn closest_on_simplex(corners: &[Point3<f64>], x: &Point3<f64>) -> [f64; 4] {
+    match corners {
+        [a] => {
+            let _ = a;
+            [1.0, 0.0, 0.0, 0.0]
+        }
+        [a, b] => {
+            let t = closest_on_segment(a, b, x);
+            [1.0 - t, t, 0.0, 0.0]
+        }
+        [a, b, c] => {
+            let w = closest_on_triangle(a, b, c, x);
+            [w[0], w[1], w[2], 0.0]
+        }
+        [a, b, c, d] => {
+            let p = [*a, *b, *c, *d];
+            if let Some(w) = tet_barycentric(&p, x)
+                && w.iter().all(|&v| v >= 0.0)
+            {
+                return w;
+            }
+            let faces = [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]];
+            let mut best = [1.0, 0.0, 0.0, 0.0];
+            let mut best_d = f64::INFINITY;
+            for f in faces {
+                let w = closest_on_triangle(&p[f[0]], &p[f[1]], &p[f[2]], x);
+                let y = Point3::from(
+                    p[f[0]].coords * w[0] + p[f[1]].coords * w[1] + p[f[2]].coords * w[2],
+                );
+                let dd = (y - x).norm_squared();
+                if dd < best_d {
+                    best_d = dd;
+                    best = [0.0; 4];
+                    for k in 0..3 {
+                        best[f[k]] = w[k];
+                    }
+                }
+            }
+            best
+        }
+        _ => [1.0, 0.0, 0.0, 0.0],
+    }
+}
+
+/// The point with convex `weights` over `corners`.
+pub fn combine(corners: &[Point3<f64>], weights: &[f64; 4]) -> Point3<f64> {
+    let mut v = Vector3::zeros();
+    for (p, w) in corners.iter().zip(weights) {
+        v += p.coords * *w;
+    }
+    Point3::from(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tet() -> [Point3<f64>; 4] {
+        [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+            Point3::new(0.0, 3.0, 0.0),
+            Point3::new(0.0, 0.0, 4.0),
+        ]
+    }
+
+    #[test]
+    fn barycentric_reproduces_point() {
+        let p = tet();
+        let x = Point3::new(0.3, 0.5, 0.7);
+        let w = tet_barycentric(&p, &x).unwrap();
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!((combine(&p, &w) - x).norm() < 1e-12);
+        assert!(w.iter().all(|&v| v > 0.0));
+        let flat = [p[0], p[1], p[2], Point3::new(1.0, 1.0, 0.0)];
+        assert!(tet_barycentric(&flat, &x).is_none());
+    }
+
+    #[test]
+    fn closest_points_are_closest() {
+        let p = tet();
+        // Brute force over a fine sampling of the tetrahedron's faces for a few outside points.
+        for x in [
+            Point3::new(3.0, 3.0, 3.0),
+            Point3::new(-1.0, -1.0, -1.0),
+            Point3::new(1.0, 1.0, -2.0),
+            Point3::new(0.5, 5.0, 0.5),
+        ] {
+            let w = closest_on_simplex(&p, &x);
+            assert!(w.iter().all(|&v| v >= -1e-12));
+            assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            let d = (combine(&p, &w) - x).norm();
+            let n = 40;
+            let mut brute = f64::INFINITY;
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    for k in 0..=n - i - j {
+                        let (a, b, c) = (
+                            i as f64 / n as f64,
+                            j as f64 / n as f64,
+                            k as f64 / n as f64,
+                        );
+                        let y = combine(&p, &[1.0 - a - b - c, a, b, c]);
+                        brute = brute.min((y - x).norm());
+                    }
+                }
+            }
+            assert!(d <= brute + 1e-9, "{d} > {brute}");
+            assert!(d > brute - 0.2, "{d} far below sampled {brute}");
+        }
+        // Inside: the point itself.
+        let x = Point3::new(0.2, 0.2, 0.2);
+        assert!((combine(&p, &closest_on_simplex(&p, &x)) - x).norm() < 1e-12);
+        // Segments and points.
+        let s = [Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0)];
+        let w = closest_on_simplex(&s, &Point3::new(2.0, 1.0, 0.0));
+        assert_eq!(w, [0.0, 1.0, 0.0, 0.0]);
+        let tri = [s[0], s[1], Point3::new(2.0, 0.0, 0.0)];
+        let w = closest_on_simplex(&tri, &Point3::new(1.5, 1.0, 0.0));
+        assert!((combine(&tri, &w) - Point3::new(1.5, 0.0, 0.0)).norm() < 1e-12);
+    }
+}

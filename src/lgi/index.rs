@@ -1,0 +1,307 @@
+//! The frame-independent part of local geometric indexing: per marker, the point cloud
+//! (§4), its tetrahedra (§4.1), a uniform grid over them (§4), the marker's blending patch
+//! with the natural-neighbour weights (§5) and, for each point, the patch's displacement
+//! and the neighbouring markers' positions in that point's shape (for the choice of §5.1).
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use super::natural_neighbor::NaturalNeighborWeights;
+use super::point_cloud::build_point_cloud;
+use super::tetrahedra::{Simplices, TetStats, tetrahedralize};
+use super::{LgiError, LgiParams, grid::TetGrid};
+use crate::dataset::{Dataset, JawPose, MarkerLayout};
+
+/// Everything one marker needs per frame.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct MarkerIndex {
+    /// Vertex of the neutral the marker sits on.
+    pub vertex: u32,
+    /// Point cloud positions (unskinned when the index uses the jaw), mm.
+    pub points: Vec<Point3<f64>>,
+    /// Dataset shape of each point (`None`: the neutral).
+    pub shapes: Vec<Option<u32>>,
+    /// Patch deformation of each point's shape (RMS displacement), mm: the tie-break.
+    pub deformation_mm: Vec<f64>,
+    /// Tetrahedra (or lower simplices) over the points.
+    pub simplices: Simplices,
+    /// Inverse edge matrices of the tetrahedra (`f32`, for the containment pre-test).
+    pub inverses: Vec<[[f32; 3]; 3]>,
+    /// Grid over the tetrahedra (`None` below dimension 3).
+    pub grid: Option<TetGrid>,
+    /// Neighbouring markers (Delaunay neighbours in UV space).
+    pub neighbors: Vec<u32>,
+    /// `points × neighbors` positions of each neighbour's vertex in each point's shape.
+    pub neighbor_positions: Vec<Point3<f64>>,
+    /// Vertices this marker blends into, with their weights (all markers present).
+    pub support: Vec<(u32, f64)>,
+    /// `points × support` displacement of each support vertex in each point's shape.
+    pub patch: Vec<Vector3<f64>>,
+}
+
+impl MarkerIndex {
+    /// Corner positions of simplex `s`.
+    pub fn corners(&self, s: usize) -> [Point3<f64>; 4] {
+        let c = self.simplices.corners[s];
+        [
+            self.points[c[0] as usize],
+            self.points[c[1] as usize],
+            self.points[c[2] as usize],
+            self.points[c[3] as usize],
+        ]
+    }
+}
+
+/// Build statistics, printed when the index is built.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct IndexStats {
+    /// Markers indexed.
+    pub markers: usize,
+    /// Shapes in the dataset (neutral excluded).
+    pub shapes: usize,
+    /// Points kept, summed over markers.
+    pub points: usize,
+    /// Smallest and largest point count of a marker.
+    pub points_min_max: (usize, usize),
+    /// Shape evaluations left out because they do not move the marker.
+    pub still: usize,
+    /// Shape evaluations merged into a coincident point.
+    pub merged: usize,
+    /// Tetrahedron counts.
+    pub tets: TetStats,
+    /// Markers that fell back to triangles, segments or a single point.
+    pub lower_dim_markers: usize,
+    /// Grid list entries, summed over markers.
+    pub grid_entries: usize,
+    /// Build time, seconds.
+    pub build_secs: f64,
+}
+
+impl std::fmt::Display for IndexStats {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "LGI index: {} markers over {} shapes; {} points ({}..{} per marker; {} still, {} \
+             merged); {} tetrahedra kept of {} combinations ({} too large, {} too thin, {} \
+             over the cap); {} markers without tetrahedra; {} grid entries; built in {:.2} s",
+            self.markers,
+            self.shapes,
+            self.points,
+            self.points_min_max.0,
+            self.points_min_max.1,
+            self.still,
+            self.merged,
+            self.tets.kept,
+            self.tets.combinations,
+            self.tets.too_large,
+            self.tets.too_thin,
+            self.tets.capped,
+            self.lower_dim_markers,
+            self.grid_entries,
+            self.build_secs
+        )
+    }
+}
+
+/// One marker's build output and counts.
+struct BuiltMarker {
+    index: MarkerIndex,
+    tets: TetStats,
+    still: usize,
+    merged: usize,
+    lower_dim: bool,
+    grid_entries: usize,
+}
+
+/// The precomputed index of a dataset for a marker layout.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct LgiIndex {
+    /// Per-marker indices, in layout order.
+    pub markers: Vec<MarkerIndex>,
+    /// Blending weights of every vertex.
+    pub weights: NaturalNeighborWeights,
+    /// Neutral positions, mm.
+    pub neutral: Vec<Point3<f64>>,
+    /// Per-shape displacements of every vertex (unskinned when `jaw` is set), mm.
+    pub displacements: Vec<Vec<Vector3<f64>>>,
+    /// Jaw skinning, when the index works in unskinned space (§6).
+    pub jaw: Option<JawSpace>,
+    /// Build statistics.
+    pub stats: IndexStats,
+}
+
+/// The jaw data of an unskinned index (Cong et al. 2019 §6).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct JawSpace {
+    /// The rig (pivot, axes, per-vertex weights).
+    pub rig: crate::dataset::JawRig,
+    /// Jaw pose of each shape, θ_n.
+    pub poses: Vec<JawPose>,
+    /// Per-frame jaw pose estimate from the bundles.
+    pub regression: super::jaw::JawRegression,
+}
+
+impl LgiIndex {
+    /// Builds the index of `dataset` for `layout` (see the module docs).
+    ///
+    /// # Errors
+    /// [`LgiError`] when the parameters are invalid, the layout does not fit the dataset,
+    /// a marker has no usable UV, or the dataset has more shapes than a point cloud can
+    /// index (65 535).
+    pub fn build(
+        dataset: &Dataset,
+        layout: &MarkerLayout,
+        params: &LgiParams,
+    ) -> Result<Self, LgiError> {
+        let t0 = std::time::Instant::now();
+        params.validate()?;
+        layout
+            .validate_for(dataset)
+            .map_err(|e| LgiError::Layout(e.to_string()))?;
+        if dataset.shapes.len() >= u16::MAX as usize {
+            return Err(LgiError::Dataset(format!(
+                "{} shapes: at most {} can be indexed",
+                dataset.shapes.len(),
+                u16::MAX - 1
+            )));
+        }
+        let neutral = dataset.neutral.positions.clone();
+        let marker_vertices: Vec<u32> = layout.markers.iter().map(|m| m.vertex).collect();
+        let jaw = super::jaw::jaw_space(dataset, params, &marker_vertices);
+        let displacements: Vec<Vec<Vector3<f64>>> = dataset
+            .shapes
+            .par_iter()
+            .enumerate()
+            .map(|(n, s)| match &jaw {
+                Some(j) => {
+                    super::jaw::unskinned_displacement(&j.rig, &j.poses[n], &neutral, &s.positions)
+                }
+                None => s
+                    .positions
+                    .iter()
+                    .zip(&neutral)
+                    .map(|(p, x)| p - x)
+                    .collect(),
+            })
+            .collect();
+        let weights = NaturalNeighborWeights::build(
+            &dataset.neutral,
+            &|v| dataset.is_face_vertex(v as u32),
+            &marker_vertices,
+        )?;
+        let support = weights.support(marker_vertices.len());
+        let built: Vec<BuiltMarker> = marker_vertices
+            .par_iter()
+            .enumerate()
+            .map(|(m, &v)| {
+                let patch_vertices: Vec<u32> = support[m].iter().map(|e| e.0).collect();
+                let cloud = build_point_cloud(
+                    v as usize,
+                    &patch_vertices,
+                    &neutral,
+                    &displacements,
+                    params.min_motion_mm,
+                    params.merge_tolerance_mm,
+                );
+                let (simplices, tstats) = tetrahedralize(
+                    &cloud.points,
+                    params.min_tet_quality,
+                    params.max_tet_edge_mm,
+                    params.max_tets_per_marker,
+                );
+                let (inverses, grid) = if simplices.dim == 3 {
+                    let inv: Vec<[[f32; 3]; 3]> = simplices
+                        .corners
+                        .iter()
+                        .map(|c| {
+                            let p = [
+                                cloud.points[c[0] as usize],
+                                cloud.points[c[1] as usize],
+                                cloud.points[c[2] as usize],
+                                cloud.points[c[3] as usize],
+                            ];
+                            super::barycentric::tet_inverse_f32(&p).unwrap_or([[0.0; 3]; 3])
+                        })
+                        .collect();
+                    let budget =
+                        (params.grid_entries_per_tet * simplices.corners.len() as f64) as usize;
+                    let g = TetGrid::build(&cloud.points, &simplices.corners, budget);
+                    (inv, Some(g))
+                } else {
+                    (Vec::new(), None)
+                };
+                let disp_of = |shape: Option<u32>, vertex: u32| -> Vector3<f64> {
+                    shape.map_or_else(Vector3::zeros, |s| {
+                        displacements[s as usize][vertex as usize]
+                    })
+                };
+                let neighbors = weights.neighbors[m].clone();
+                let mut neighbor_positions =
+                    Vec::with_capacity(cloud.points.len() * neighbors.len());
+                let mut patch = Vec::with_capacity(cloud.points.len() * support[m].len());
+                for &s in &cloud.shapes {
+                    for &k in &neighbors {
+                        let kv = marker_vertices[k as usize];
+                        neighbor_positions.push(neutral[kv as usize] + disp_of(s, kv));
+                    }
+                    for &(sv, _) in &support[m] {
+                        patch.push(disp_of(s, sv));
+                    }
+                }
+                let lower_dim = simplices.dim < 3;
+                let still = cloud.still;
+                let merged = cloud.merged;
+                let grid_entries = grid.as_ref().map_or(0, TetGrid::entries);
+                BuiltMarker {
+                    index: MarkerIndex {
+                        vertex: v,
+                        points: cloud.points,
+                        shapes: cloud.shapes,
+                        deformation_mm: cloud.deformation_mm,
+                        simplices,
+                        inverses,
+                        grid,
+                        neighbors,
+                        neighbor_positions,
+                        support: support[m].clone(),
+                        patch,
+                    },
+                    tets: tstats,
+                    still,
+                    merged,
+                    lower_dim,
+                    grid_entries,
+                }
+            })
+            .collect();
+        let mut stats = IndexStats {
+            markers: built.len(),
+            shapes: dataset.shapes.len(),
+            points_min_max: (usize::MAX, 0),
+            ..Default::default()
+        };
+        let mut markers = Vec::with_capacity(built.len());
+        for b in built {
+            let n = b.index.points.len();
+            stats.points += n;
+            stats.points_min_max.0 = stats.points_min_max.0.min(n);
+            stats.points_min_max.1 = stats.points_min_max.1.max(n);
+            stats.still += b.still;
+            stats.merged += b.merged;
+            stats.lower_dim_markers += usize::from(b.lower_dim);
+            stats.tets.add(&b.tets);
+            stats.grid_entries += b.grid_entries;
+            markers.push(b.index);
+        }
+        stats.build_secs = t0.elapsed().as_secs_f64();
+        tracing::info!("{stats}");
+        Ok(Self {
+            markers,
+            weights,
+            neutral,
+            displacements,
+            jaw,
+            stats,
+        })
+    }
+}

@@ -1,0 +1,253 @@
+//! The non-manifold tetrahedralization of a marker's point cloud (Cong et al. 2019 §4.1):
+//! every combination of four points, minus the degenerate and badly shaped ones, capped in
+//! number.
+//!
+//! Tetrahedra overlap on purpose: "different expressions can map to the same bundle
+//! position with different local curvature", and the choice among them is made per frame
+//! (§5.1). A space-filling Delaunay tetrahedralization would force one answer per position.
+//!
+//! # Pruning (every limit is a field of [`super::LgiParams`])
+//! - degenerate or too thin: shape quality `q = 6√2·V / l_rms³` (1 for the regular
+//!   tetrahedron, 0 when flat) under `min_tet_quality`;
+//! - too large: an edge longer than `max_tet_edge_mm` (such a tetrahedron mixes expressions
+//!   far apart in the marker's range of motion);
+//! - too many: past `max_tets_per_marker`, the smallest (by `l_rms`) are kept, as they
+//!   interpolate between the most similar shapes.
+//!
+//! When no tetrahedron survives (a marker moved along a plane or a line only, or by fewer
+//! than three shapes), the marker falls back to triangles, then segments, then its single
+//! point: the bundle is then always projected (§4, outside every tetrahedron).
+
+use nalgebra::Point3;
+
+/// The simplices of one marker: corners index the marker's point cloud.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Simplices {
+    /// Dimension: 3 (tetrahedra), 2, 1 or 0. Corners past `dim` repeat corner 0.
+    pub dim: u8,
+    /// Corner point indices.
+    pub corners: Vec<[u16; 4]>,
+}
+
+/// Counts of what the pruning did, summed over markers.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TetStats {
+    /// Four-point combinations considered.
+    pub combinations: u64,
+    /// Dropped for an edge over `max_tet_edge_mm`.
+    pub too_large: u64,
+    /// Dropped as degenerate or under `min_tet_quality`.
+    pub too_thin: u64,
+    /// Dropped by the per-marker cap.
+    pub capped: u64,
+    /// Kept.
+    pub kept: u64,
+}
+
+impl TetStats {
+    /// Adds another marker's counts.
+    pub fn add(&mut self, o: &TetStats) {
+        self.combinations += o.combinations;
+        self.too_large += o.too_large;
+        self.too_thin += o.too_thin;
+        self.capped += o.capped;
+        self.kept += o.kept;
+    }
+}
+
+/// Shape quality `6√2·V / l_rms³` of a tetrahedron and its `l_rms`.
+pub fn tet_quality(p: &[Point3<f64>; 4]) -> (f64, f64) {
+    let e1 = p[1] - p[0];
+    let e2 = p[2] - p[0];
+    let e3 = p[3] - p[0];
+    let vol = e1.dot(&e2.cross(&e3)).abs() / 6.0;
+    let l2 = e1.norm_squared()
+        + e2.norm_squared()
+        + e3.norm_squared()
+        + (p[2] - p[1]).norm_squared()
+        + (p[3] - p[1]).norm_squared()
+        + (p[3] - p[2]).norm_squared();
+    let lrms = (l2 / 6.0).sqrt();
+    if lrms <= 0.0 {
+        return (0.0, 0.0);
+    }
+    (
+        6.0 * std::f64::consts::SQRT_2 * vol / (lrms * lrms * lrms),
+        lrms,
+    )
+}
+
+/// Triangle quality `4√3·A / Σ l²` (1 equilateral, 0 flat) and its `l_rms`.
+fn tri_quality(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> (f64, f64) {
+    let area = (b - a).cross(&(c - a)).norm() / 2.0;
+    let l2 = (b - a).norm_squared() + (c - a).norm_squared() + (c - b).norm_squared();
+    if l2 <= 0.0 {
+        return (0.0, 0.0);
+    }
+    (4.0 * 3f64.sqrt() * area / l2, (l2 / 3.0).sqrt())
+}
+
+/// Tetrahedralizes `points` (at most 65 536) with the pruning of the module docs.
+pub fn tetrahedralize(
+    points: &[Point3<f64>],
+    min_quality: f64,
+    max_edge_mm: f64,
+    max_count: usize,
+) -> (Simplices, TetStats) {
+    let n = points.len().min(u16::MAX as usize + 1);
+    let mut stats = TetStats::default();
+    let max_e2 = max_edge_mm * max_edge_mm;
+    let near: Vec<Vec<bool>> = (0..n)
+        .map(|i| {
+            (0..n)
+                .map(|j| (points[i] - points[j]).norm_squared() <= max_e2)
+                .collect()
+        })
+        .collect();
+    let mut kept: Vec<(f32, [u16; 4])> = Vec::new();
+    for i in 0..n {
+        for j in i + 1..n {
+            for k in j + 1..n {
+                for l in k + 1..n {
+                    stats.combinations += 1;
+                    if !(near[i][j]
+                        && near[i][k]
+                        && near[i][l]
+                        && near[j][k]
+                        && near[j][l]
+                        && near[k][l])
+                    {
+                        stats.too_large += 1;
+                        continue;
+                    }
+                    let p = [points[i], points[j], points[k], points[l]];
+                    let (q, lrms) = tet_quality(&p);
+                    if !(q >= min_quality && q > 0.0) {
+                        stats.too_thin += 1;
+                        continue;
+                    }
+                    kept.push((lrms as f32, [i as u16, j as u16, k as u16, l as u16]));
+                }
+            }
+        }
+    }
+    if !kept.is_empty() {
+        if kept.len() > max_count {
+            kept.select_nth_unstable_by(max_count, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            stats.capped = (kept.len() - max_count) as u64;
+            kept.truncate(max_count);
+        }
+        kept.sort_by(|a, b| a.1.cmp(&b.1));
+        stats.kept = kept.len() as u64;
+        return (
+            Simplices {
+                dim: 3,
+                corners: kept.into_iter().map(|t| t.1).collect(),
+            },
+            stats,
+        );
+    }
+    // Lower-dimensional fallbacks.
+    let mut tris = Vec::new();
+    for i in 0..n {
+        for j in i + 1..n {
+            for k in j + 1..n {
+                if near[i][j] && near[i][k] && near[j][k] {
+                    let (q, _) = tri_quality(&points[i], &points[j], &points[k]);
+                    if q >= min_quality && q > 0.0 {
+                        tris.push([i as u16, j as u16, k as u16, i as u16]);
+                    }
+                }
+            }
+        }
+    }
+    if !tris.is_empty() {
+        tris.truncate(max_count);
+        return (
+            Simplices {
+                dim: 2,
+                corners: tris,
+            },
+            stats,
+        );
+    }
+    let mut segs = Vec::new();
+    for i in 0..n {
+        for j in i + 1..n {
+            if near[i][j] && (points[i] - points[j]).norm() > 0.0 {
+                segs.push([i as u16, j as u16, i as u16, i as u16]);
+            }
+        }
+    }
+    if !segs.is_empty() {
+        segs.truncate(max_count);
+        return (
+            Simplices {
+                dim: 1,
+                corners: segs,
+            },
+            stats,
+        );
+    }
+    (
+        Simplices {
+            dim: 0,
+            corners: vec![[0; 4]],
+        },
+        stats,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn all_good_combinations_are_kept_and_bad_ones_dropped() {
+        let pts = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(1.0, 1.0, 1.0),
+            Point3::new(0.5, 0.5, 0.0), // on the base plane: some flat combinations
+            Point3::new(50.0, 0.0, 0.0), // far away: too large
+        ];
+        let (s, st) = tetrahedralize(&pts, 0.05, 10.0, 1000);
+        assert_eq!(s.dim, 3);
+        assert_eq!(st.combinations, 35);
+        assert_eq!(st.too_large, 20);
+        assert!(st.too_thin >= 1);
+        assert_eq!(st.kept as usize, s.corners.len());
+        for t in &s.corners {
+            assert!(!t.contains(&6));
+            assert!(!(t.contains(&0) && t.contains(&1) && t.contains(&2) && t.contains(&5)));
+        }
+        let (capped, st) = tetrahedralize(&pts, 0.05, 10.0, 3);
+        assert_eq!(capped.corners.len(), 3);
+        assert_eq!(st.capped as usize, s.corners.len() - 3);
+    }
+
+    #[test]
+    fn degenerate_clouds_fall_back() {
+        let line = vec![
+            Point3::origin(),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+        ];
+        let (s, _) = tetrahedralize(&line, 0.05, 10.0, 100);
+        assert_eq!(s.dim, 1);
+        assert_eq!(s.corners.len(), 3);
+        let plane = vec![
+            Point3::origin(),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(1.0, 1.0, 0.0),
+        ];
+        assert_eq!(tetrahedralize(&plane, 0.05, 10.0, 100).0.dim, 2);
+        assert_eq!(
+            tetrahedralize(&[Point3::origin()], 0.05, 10.0, 100).0.dim,
+            0
+        );
+    }
+}
