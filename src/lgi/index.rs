@@ -19,9 +19,17 @@ pub struct MarkerIndex {
     pub vertex: u32,
     /// Point cloud positions (unskinned when the index uses the jaw), mm.
     pub points: Vec<Point3<f64>>,
-    /// Dataset shape of each point (`None`: the neutral).
+    /// Variants of point `j` are `point_variants[j]..point_variants[j + 1]`, the
+    /// representative first (see [`super::point_cloud::PointCloud`]).
+    pub point_variants: Vec<u32>,
+    /// Dataset shape of each variant (`None`: the neutral).
     pub shapes: Vec<Option<u32>>,
-    /// Patch deformation of each point's shape (RMS displacement), mm: the tie-break.
+    /// Point of each variant.
+    pub variant_point: Vec<u16>,
+    /// The marker's own position in each variant's shape (within the merge tolerance of
+    /// its point), mm: what the candidate surface passes through.
+    pub variant_position: Vec<Point3<f64>>,
+    /// Patch deformation of each variant's shape (RMS displacement), mm: the tie-break.
     pub deformation_mm: Vec<f64>,
     /// Tetrahedra (or lower simplices) over the points.
     pub simplices: Simplices,
@@ -31,15 +39,25 @@ pub struct MarkerIndex {
     pub grid: Option<TetGrid>,
     /// Neighbouring markers (Delaunay neighbours in UV space).
     pub neighbors: Vec<u32>,
-    /// `points × neighbors` positions of each neighbour's vertex in each point's shape.
+    /// `variants × neighbors` positions of each neighbour's vertex in each variant's shape.
     pub neighbor_positions: Vec<Point3<f64>>,
     /// Vertices this marker blends into, with their weights (all markers present).
     pub support: Vec<(u32, f64)>,
-    /// `points × support` displacement of each support vertex in each point's shape.
+    /// `variants × support` displacement of each support vertex in each variant's shape.
     pub patch: Vec<Vector3<f64>>,
 }
 
 impl MarkerIndex {
+    /// Positions of the given corner points.
+    pub fn corners_of(&self, c: &[u16; 4]) -> [Point3<f64>; 4] {
+        [
+            self.points[c[0] as usize],
+            self.points[c[1] as usize],
+            self.points[c[2] as usize],
+            self.points[c[3] as usize],
+        ]
+    }
+
     /// Corner positions of simplex `s`.
     pub fn corners(&self, s: usize) -> [Point3<f64>; 4] {
         let c = self.simplices.corners[s];
@@ -65,8 +83,10 @@ pub struct IndexStats {
     pub points_min_max: (usize, usize),
     /// Shape evaluations left out because they do not move the marker.
     pub still: usize,
-    /// Shape evaluations merged into a coincident point.
+    /// Shape evaluations kept as variants of a coincident point.
     pub merged: usize,
+    /// Variants (points plus merged shapes), summed over markers.
+    pub variants: usize,
     /// Tetrahedron counts.
     pub tets: TetStats,
     /// Markers that fell back to triangles, segments or a single point.
@@ -82,7 +102,7 @@ impl std::fmt::Display for IndexStats {
         write!(
             f,
             "LGI index: {} markers over {} shapes; {} points ({}..{} per marker; {} still, {} \
-             merged); {} tetrahedra kept of {} combinations ({} too large, {} too thin, {} \
+             variants of coincident points); {} tetrahedra kept of {} combinations ({} too large, {} too thin, {} \
              over the cap); {} markers without tetrahedra; {} grid entries; built in {:.2} s",
             self.markers,
             self.shapes,
@@ -202,6 +222,7 @@ impl LgiIndex {
                     &displacements,
                     params.min_motion_mm,
                     params.merge_tolerance_mm,
+                    params.variant_tolerance_mm,
                 );
                 let (simplices, tstats) = tetrahedralize(
                     &cloud.points,
@@ -236,10 +257,25 @@ impl LgiIndex {
                     })
                 };
                 let neighbors = weights.neighbors[m].clone();
-                let mut neighbor_positions =
-                    Vec::with_capacity(cloud.points.len() * neighbors.len());
-                let mut patch = Vec::with_capacity(cloud.points.len() * support[m].len());
-                for &s in &cloud.shapes {
+                let mut point_variants = vec![0u32];
+                let mut shapes = Vec::new();
+                let mut variant_point = Vec::new();
+                let mut deformation_mm = Vec::new();
+                for (j, vs) in cloud.variants.iter().enumerate() {
+                    for &(s, d) in vs {
+                        shapes.push(s);
+                        variant_point.push(j as u16);
+                        deformation_mm.push(d);
+                    }
+                    point_variants.push(shapes.len() as u32);
+                }
+                let variant_position: Vec<Point3<f64>> = shapes
+                    .iter()
+                    .map(|&s| neutral[v as usize] + disp_of(s, v))
+                    .collect();
+                let mut neighbor_positions = Vec::with_capacity(shapes.len() * neighbors.len());
+                let mut patch = Vec::with_capacity(shapes.len() * support[m].len());
+                for &s in &shapes {
                     for &k in &neighbors {
                         let kv = marker_vertices[k as usize];
                         neighbor_positions.push(neutral[kv as usize] + disp_of(s, kv));
@@ -256,8 +292,11 @@ impl LgiIndex {
                     index: MarkerIndex {
                         vertex: v,
                         points: cloud.points,
-                        shapes: cloud.shapes,
-                        deformation_mm: cloud.deformation_mm,
+                        point_variants,
+                        shapes,
+                        variant_point,
+                        variant_position,
+                        deformation_mm,
                         simplices,
                         inverses,
                         grid,
@@ -287,6 +326,7 @@ impl LgiIndex {
             stats.points_min_max.0 = stats.points_min_max.0.min(n);
             stats.points_min_max.1 = stats.points_min_max.1.max(n);
             stats.still += b.still;
+            stats.variants += b.index.shapes.len();
             stats.merged += b.merged;
             stats.lower_dim_markers += usize::from(b.lower_dim);
             stats.tets.add(&b.tets);

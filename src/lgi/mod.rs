@@ -87,9 +87,13 @@ pub struct LgiParams {
     /// A shape whose displacement at a marker is under this does not involve the marker and
     /// is left out of its point cloud (§4.1), mm. Default 0.01.
     pub min_motion_mm: f64,
-    /// Points of one cloud closer than this are merged (keeping the least-deforming
-    /// shape), mm. Default 0.01.
+    /// Points of one cloud closer than this are merged into one point of the
+    /// tetrahedralization (the least-deforming shape represents it), mm. Default 0.01.
     pub merge_tolerance_mm: f64,
+    /// A merged or still shape stays as a variant of its point when its displacement of
+    /// the marker's patch differs from every other variant's by at least this (RMS), mm;
+    /// otherwise it is redundant and dropped. Default 0.0001.
+    pub variant_tolerance_mm: f64,
     /// Tetrahedra with shape quality `6√2·V / l_rms³` under this are too thin (§4.1).
     /// Default 0.001 (only near-flat ones go: a thin tetrahedron still interpolates
     /// correctly, and keeping many tetrahedra is what makes LGI accurate).
@@ -123,8 +127,9 @@ pub struct LgiParams {
 impl Default for LgiParams {
     fn default() -> Self {
         Self {
-            min_motion_mm: 0.0001,
-            merge_tolerance_mm: 0.0001,
+            min_motion_mm: 0.01,
+            merge_tolerance_mm: 0.01,
+            variant_tolerance_mm: 0.0001,
             min_tet_quality: 0.001,
             max_tet_edge_mm: 1000.0,
             max_tets_per_marker: 200_000,
@@ -157,6 +162,7 @@ impl LgiParams {
         };
         nonneg("min_motion_mm", self.min_motion_mm)?;
         nonneg("merge_tolerance_mm", self.merge_tolerance_mm)?;
+        nonneg("variant_tolerance_mm", self.variant_tolerance_mm)?;
         nonneg("projection_slack_mm", self.projection_slack_mm)?;
         nonneg("temporal_weight_mm", self.temporal_weight_mm)?;
         if !(0.0..1.0).contains(&self.min_tet_quality) {
@@ -198,7 +204,7 @@ pub struct MarkerWeights {
     pub present: bool,
     /// Whether the bundle lay inside a tetrahedron (else it was projected).
     pub inside: bool,
-    /// `(point index, weight)`, weights summing to 1 (4 entries at most before
+    /// `(variant index, weight)`, weights summing to 1 (4 entries at most before
     /// smoothing).
     pub points: Vec<(u16, f64)>,
 }
@@ -426,14 +432,15 @@ impl LgiSolver {
             let mut points: Vec<(u16, f64)> = Vec::with_capacity(4);
             for k in 0..=dim {
                 if c.weights[k] > 0.0 {
-                    match points.iter_mut().find(|e| e.0 == c.corners[k]) {
+                    let var = c.variants[k] as u16;
+                    match points.iter_mut().find(|e| e.0 == var) {
                         Some(e) => e.1 += c.weights[k],
-                        None => points.push((c.corners[k], c.weights[k])),
+                        None => points.push((var, c.weights[k])),
                     }
                 }
             }
             if points.is_empty() {
-                points.push((c.corners[0], 1.0));
+                points.push((c.variants[0] as u16, 1.0));
             }
             markers.push(MarkerWeights {
                 present: true,
@@ -481,7 +488,7 @@ impl LgiSolver {
                     let at: Vector3<f64> = mw
                         .points
                         .iter()
-                        .map(|&(j, w)| mi.points[j as usize].coords * w)
+                        .map(|&(j, w)| mi.variant_position[j as usize].coords * w)
                         .sum();
                     x.coords - at
                 }

@@ -13,11 +13,13 @@
 //!   the linear weights of the edge's two markers (Sibson coordinates restricted to the
 //!   hull boundary). Projection onto a convex set is continuous, so the weights stay
 //!   continuous across the hull and the outer face follows the outermost markers.
-//! - **On another UV island than the markers** (ears and neck in ICT-FaceKit, the eyes,
-//!   teeth and mouth socket, any vertex outside the dataset's face range): UV distances
-//!   to the markers mean nothing there. The vertex copies the weights of the nearest
-//!   (3D, neutral pose) vertex that has UV weights, and so is carried along with the
-//!   nearest part of the face. Its own displacement in each chosen shape is still used.
+//! - **On another UV island** than the one holding most markers (ears and neck in
+//!   ICT-FaceKit, the eyes, teeth and mouth socket, any vertex outside the dataset's face
+//!   range): UV distances to the markers mean nothing there. The vertex copies the weights
+//!   of the nearest (3D, neutral pose) vertex that has UV weights, and so is carried along
+//!   with the nearest part of the face. Its own displacement in each chosen shape is still
+//!   used. A marker on such an island stands, in UV, at its nearest main-island vertex, so
+//!   the surface still passes through its bundle.
 //! - **A mesh without UVs**: the frontal projection (x, y) of the neutral stands in for UV.
 //!
 //! # Missing markers
@@ -121,19 +123,62 @@ impl NaturalNeighborWeights {
         }
         let n = mesh.vertex_count();
         let (coords, island) = vertex_coords(mesh);
-        let mut marker_uv = Vec::with_capacity(marker_vertices.len());
-        let mut marker_islands = Vec::new();
+        // The UV domain is the island holding the most markers; only its vertices get UV
+        // weights (UV coordinates of different islands are unrelated).
+        let mut counts: std::collections::HashMap<u32, usize> = Default::default();
         for (m, &v) in marker_vertices.iter().enumerate() {
-            let p = coords
-                .get(v as usize)
-                .filter(|p| p.x.is_finite() && p.y.is_finite())
-                .ok_or(NaturalNeighborError::NoUv(m))?;
-            marker_uv.push(*p);
-            marker_islands.push(island[v as usize]);
+            let v = v as usize;
+            if v >= n || !coords[v].x.is_finite() || !coords[v].y.is_finite() {
+                return Err(NaturalNeighborError::NoUv(m));
+            }
+            *counts.entry(island[v]).or_default() += 1;
         }
+        let main = counts
+            .iter()
+            .max_by_key(|(i, c)| (**c, std::cmp::Reverse(**i)))
+            .map(|(i, _)| *i)
+            .ok_or(NaturalNeighborError::NoMarkers)?;
         let uv_vertex: Vec<bool> = (0..n)
-            .map(|v| face(v) && coords[v].x.is_finite() && marker_islands.contains(&island[v]))
+            .map(|v| face(v) && coords[v].x.is_finite() && island[v] == main)
             .collect();
+        // A marker off the main island stands at its nearest (3D) main-island vertex, so
+        // that vertex, and the marker's own vertex that copies it, get weight 1 on it.
+        let source = nearest_sources(&mesh.positions, &uv_vertex);
+        let mut marker_uv: Vec<Point2<f64>> = marker_vertices
+            .iter()
+            .map(|&v| coords[v as usize])
+            .collect();
+        let key = |p: &Point2<f64>| (p.x.to_bits(), p.y.to_bits());
+        let mut taken: std::collections::HashSet<(u64, u64)> = marker_vertices
+            .iter()
+            .filter(|&&v| uv_vertex[v as usize])
+            .map(|&v| key(&coords[v as usize]))
+            .collect();
+        let mut marker_sources = Vec::new();
+        for (m, &v) in marker_vertices.iter().enumerate() {
+            let v = v as usize;
+            if uv_vertex[v] {
+                continue;
+            }
+            // Nearest main-island vertex whose UV no other marker uses.
+            let mut cands: Vec<(f64, usize)> = (0..n)
+                .filter(|&u| uv_vertex[u])
+                .map(|u| ((mesh.positions[u] - mesh.positions[v]).norm_squared(), u))
+                .collect();
+            cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let u = cands
+                .iter()
+                .map(|c| c.1)
+                .find(|&u| !taken.contains(&key(&coords[u])))
+                .ok_or(NaturalNeighborError::NoUv(m))?;
+            taken.insert(key(&coords[u]));
+            marker_uv[m] = coords[u];
+            marker_sources.push((v, u as u32));
+        }
+        let mut source = source;
+        for (v, u) in marker_sources {
+            source[v] = u;
+        }
         let all: Vec<bool> = vec![true; marker_vertices.len()];
         let tri = triangulate(&marker_uv, &all)?;
         let neighbors = delaunay_neighbors(&tri, marker_vertices.len());
@@ -148,7 +193,6 @@ impl NaturalNeighborWeights {
             }
         }
         // Everything else copies its nearest UV-weighted vertex.
-        let source = nearest_sources(&mesh.positions, &uv_vertex);
         let mut offsets = Vec::with_capacity(n + 1);
         let mut entries = Vec::new();
         offsets.push(0u32);
@@ -206,6 +250,7 @@ fn triangulate(
     present: &[bool],
 ) -> Result<DelaunayTriangulation<Site>, NaturalNeighborError> {
     let mut tri: DelaunayTriangulation<Site> = DelaunayTriangulation::new();
+    let mut seen: std::collections::HashMap<(u64, u64), usize> = Default::default();
     let mut count = 0;
     for (m, uv) in marker_uv.iter().enumerate() {
         if !present.get(m).copied().unwrap_or(false) {
@@ -215,12 +260,7 @@ fn triangulate(
             uv: spade::Point2::new(uv.x, uv.y),
             marker: m as u32,
         };
-        let before = tri.num_vertices();
-        let h = tri
-            .insert(site)
-            .map_err(|_| NaturalNeighborError::NoUv(m))?;
-        if tri.num_vertices() == before {
-            let other = tri.vertex(h).data().marker as usize;
+        if let Some(&other) = seen.get(&(uv.x.to_bits(), uv.y.to_bits())) {
             return Err(NaturalNeighborError::SharedUv {
                 a: other,
                 b: m,
@@ -228,6 +268,9 @@ fn triangulate(
                 v: uv.y,
             });
         }
+        seen.insert((uv.x.to_bits(), uv.y.to_bits()), m);
+        tri.insert(site)
+            .map_err(|_| NaturalNeighborError::NoUv(m))?;
         count += 1;
     }
     if count == 0 {

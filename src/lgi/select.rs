@@ -32,6 +32,8 @@ pub struct Choice {
     /// Point indices of the simplex corners (corners past the simplex's dimension repeat
     /// corner 0 with weight 0).
     pub corners: [u16; 4],
+    /// Variant chosen at each corner (index into the marker's variants).
+    pub variants: [u32; 4],
     /// Convex weights of the corners.
     pub weights: [f64; 4],
     /// Whether the bundle lies in the chosen tetrahedron (else it was projected).
@@ -48,6 +50,12 @@ pub struct Scratch {
     stamp: Vec<u32>,
     epoch: u32,
     found: Vec<(u32, [f64; 4], f64)>,
+    /// Neighbour errors of each point's representative: `points × present neighbours`.
+    err: Vec<Vector3<f64>>,
+    /// Gram matrix of `err` over the present neighbours, `points × points`.
+    gram: Vec<f64>,
+    /// Variant representing each point in this frame.
+    rep: Vec<u32>,
 }
 
 /// Selection settings (from [`super::LgiParams`]).
@@ -63,6 +71,11 @@ pub struct SelectParams {
 ///
 /// `neighbors[k]` is the bundle of `mi.neighbors[k]` in this frame (`None` when missing);
 /// `previous` the corners chosen for this marker in the previous frame.
+///
+/// The neighbour cost of convex weights `w` over points is the quadratic form
+/// `wᵀ G w`, `G_ab = mean_k (q_ak − y_k)·(q_bk − y_k)` with `q_ak` neighbour `k`'s position
+/// in point `a`'s shape and `y_k` its bundle, so `G` is formed once per marker and frame and
+/// each candidate costs a handful of operations.
 pub fn choose(
     mi: &MarkerIndex,
     x: &Point3<f64>,
@@ -73,20 +86,68 @@ pub fn choose(
 ) -> Choice {
     let dim = mi.simplices.dim as usize;
     let nk = mi.neighbors.len();
-    let score = |corners: &[u16; 4], w: &[f64; 4], self_d2: f64| -> f64 {
-        let mut sum = 0.0;
-        let mut count = 0usize;
-        for (k, y) in neighbors.iter().enumerate() {
-            let Some(y) = y else { continue };
-            let mut pred = Vector3::zeros();
-            for c in 0..=dim {
-                pred += mi.neighbor_positions[corners[c] as usize * nk + k].coords * w[c];
+    let np = mi.points.len();
+    // Neighbour errors of each point's representative variant, then their Gram matrix.
+    let present: Vec<usize> = (0..nk).filter(|&k| neighbors[k].is_some()).collect();
+    let npk = present.len();
+    // Each point is represented by its variant that best predicts the neighbours alone.
+    scratch.rep.clear();
+    for j in 0..np {
+        let (lo, hi) = (mi.point_variants[j], mi.point_variants[j + 1]);
+        let mut best = (f64::INFINITY, lo);
+        if hi - lo > 1 && npk > 0 {
+            for u in lo..hi {
+                let e: f64 = present
+                    .iter()
+                    .filter_map(|&k| {
+                        neighbors[k].map(|y| {
+                            (mi.neighbor_positions[u as usize * nk + k] - y).norm_squared()
+                        })
+                    })
+                    .sum::<f64>()
+                    .sqrt()
+                    + TIE_BREAK * mi.deformation_mm[u as usize];
+                if e < best.0 {
+                    best = (e, u);
+                }
             }
-            sum += (pred - y.coords).norm_squared();
-            count += 1;
         }
-        let nbr = if count > 0 { sum / count as f64 } else { 0.0 };
-        let mut cost = (nbr + self_d2).sqrt();
+        scratch.rep.push(best.1);
+    }
+    scratch.err.clear();
+    for j in 0..np {
+        let rep = scratch.rep[j] as usize;
+        for &k in &present {
+            if let Some(y) = neighbors[k] {
+                scratch.err.push(mi.neighbor_positions[rep * nk + k] - y);
+            }
+        }
+    }
+    scratch.gram.clear();
+    scratch.gram.resize(np * np, 0.0);
+    if npk > 0 {
+        let inv = 1.0 / npk as f64;
+        for a in 0..np {
+            let ea = &scratch.err[a * npk..(a + 1) * npk];
+            for b in a..np {
+                let eb = &scratch.err[b * npk..(b + 1) * npk];
+                let g = ea.iter().zip(eb).map(|(u, v)| u.dot(v)).sum::<f64>() * inv;
+                scratch.gram[a * np + b] = g;
+                scratch.gram[b * np + a] = g;
+            }
+        }
+    }
+    let gram = &scratch.gram;
+    let rep = &scratch.rep;
+    let score = |corners: &[u16; 4], w: &[f64; 4], self_d2: f64| -> f64 {
+        let mut q = 0.0;
+        for a in 0..=dim {
+            let ra = corners[a] as usize * np;
+            for b in 0..=dim {
+                q += w[a] * w[b] * gram[ra + corners[b] as usize];
+            }
+        }
+        let mut cost = (q.max(0.0) + self_d2).sqrt();
         if let Some(prev) = previous {
             let shared = corners[..=dim]
                 .iter()
@@ -95,28 +156,26 @@ pub fn choose(
             cost += params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64;
         }
         let deform: f64 = (0..=dim)
-            .map(|c| w[c] * mi.deformation_mm[corners[c] as usize])
+            .map(|c| w[c] * mi.deformation_mm[rep[corners[c] as usize] as usize])
             .sum();
         cost + TIE_BREAK * deform
     };
 
-    let mut best: Option<Choice> = None;
-    let consider =
-        |best: &mut Option<Choice>, corners: [u16; 4], w: [f64; 4], inside: bool, self_d2: f64| {
-            let cost = score(&corners, &w, self_d2);
-            if best.as_ref().is_none_or(|b| cost < b.cost_mm) {
-                *best = Some(Choice {
-                    corners,
-                    weights: w,
-                    inside,
-                    residual: Vector3::zeros(),
-                    cost_mm: cost,
-                });
-            }
-        };
+    let mut best: Option<([u16; 4], [f64; 4], bool, f64)> = None;
+    let consider = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
+                    corners: [u16; 4],
+                    w: [f64; 4],
+                    inside: bool,
+                    self_d2: f64| {
+        let cost = score(&corners, &w, self_d2);
+        if best.as_ref().is_none_or(|b| cost < b.3) {
+            *best = Some((corners, w, inside, cost));
+        }
+    };
 
     if let Some(grid) = &mi.grid {
-        // 1. Tetrahedra containing the bundle.
+        // 1. Tetrahedra containing the bundle (ranked with f32 weights, the winner's
+        //    weights recomputed in f64 below).
         for &t in grid.candidates(x) {
             let t = t as usize;
             let c = mi.simplices.corners[t];
@@ -124,24 +183,42 @@ pub fn choose(
             let d = x - p0;
             let d = [d.x as f32, d.y as f32, d.z as f32];
             let inv = &mi.inverses[t];
+            let mut w = [0f64; 4];
             let mut wsum = 0f32;
             let mut ok = true;
-            for row in inv {
+            for (r, row) in inv.iter().enumerate() {
                 let wi = row[0] * d[0] + row[1] * d[1] + row[2] * d[2];
                 ok &= wi >= -PRETEST_SLACK;
                 wsum += wi;
+                w[r + 1] = f64::from(wi.max(0.0));
             }
             if !ok || 1.0 - wsum < -PRETEST_SLACK {
                 continue;
             }
-            let Some(mut w) = tet_barycentric(&mi.corners(t), x) else {
-                continue;
-            };
-            if w.iter().any(|&v| v < INSIDE_SLACK) {
-                continue;
-            }
+            w[0] = f64::from((1.0 - wsum).max(0.0));
             clamp_convex(&mut w);
             consider(&mut best, c, w, true, 0.0);
+        }
+        // The winner's exact weights; a pre-test false positive falls through to projection.
+        if let Some(b) = &mut best {
+            match tet_barycentric(
+                &[
+                    mi.points[b.0[0] as usize],
+                    mi.points[b.0[1] as usize],
+                    mi.points[b.0[2] as usize],
+                    mi.points[b.0[3] as usize],
+                ],
+                x,
+            ) {
+                Some(mut w) if w.iter().all(|&v| v >= INSIDE_SLACK) => {
+                    clamp_convex(&mut w);
+                    b.1 = w;
+                }
+                _ => {
+                    let p = mi.corners_of(&b.0);
+                    b.1 = closest_on_simplex(&p, x);
+                }
+            }
         }
         if best.is_none() {
             // 2. Projection onto the tetrahedral volume, via the grid's shells.
@@ -200,19 +277,72 @@ pub fn choose(
             }
         }
     }
-    let mut choice = best.unwrap_or(Choice {
-        corners: [0; 4],
-        weights: [1.0, 0.0, 0.0, 0.0],
-        inside: false,
-        residual: Vector3::zeros(),
-        cost_mm: f64::INFINITY,
-    });
+    let (corners, weights, inside, cost_mm) =
+        best.unwrap_or(([0; 4], [1.0, 0.0, 0.0, 0.0], false, f64::INFINITY));
+    let variants = refine_variants(mi, &corners, &weights, dim, neighbors, &scratch.rep);
     let mut at = Vector3::zeros();
-    for c in 0..=dim.min(3) {
-        at += mi.points[choice.corners[c] as usize].coords * choice.weights[c];
+    for c in 0..=dim {
+        at += mi.variant_position[variants[c] as usize].coords * weights[c];
     }
-    choice.residual = x.coords - at;
-    choice
+    Choice {
+        corners,
+        variants,
+        weights,
+        inside,
+        residual: x.coords - at,
+        cost_mm,
+    }
+}
+
+/// Picks, corner by corner, the variant of each point whose shape best predicts the
+/// present neighbours given the other corners (one pass of coordinate descent on the
+/// neighbour cost; ties to the least deforming variant).
+fn refine_variants(
+    mi: &MarkerIndex,
+    corners: &[u16; 4],
+    weights: &[f64; 4],
+    dim: usize,
+    neighbors: &[Option<Point3<f64>>],
+    rep: &[u32],
+) -> [u32; 4] {
+    let nk = mi.neighbors.len();
+    let mut var = [0u32; 4];
+    for c in 0..4 {
+        var[c] = rep[corners[c] as usize];
+    }
+    let has_choice = (0..=dim).any(|c| {
+        let j = corners[c] as usize;
+        mi.point_variants[j + 1] - mi.point_variants[j] > 1 && weights[c] > 0.0
+    });
+    if !has_choice || neighbors.iter().all(Option::is_none) {
+        return var;
+    }
+    for c in 0..=dim {
+        let j = corners[c] as usize;
+        let (lo, hi) = (mi.point_variants[j], mi.point_variants[j + 1]);
+        if hi - lo <= 1 || weights[c] <= 0.0 {
+            continue;
+        }
+        let mut best = (f64::INFINITY, var[c]);
+        for u in lo..hi {
+            let mut cost = 0.0;
+            for (k, y) in neighbors.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let mut pred = Vector3::zeros();
+                for c2 in 0..=dim {
+                    let v = if c2 == c { u } else { var[c2] } as usize;
+                    pred += mi.neighbor_positions[v * nk + k].coords * weights[c2];
+                }
+                cost += (pred - y.coords).norm_squared();
+            }
+            let cost = cost.sqrt() + TIE_BREAK * mi.deformation_mm[u as usize];
+            if cost < best.0 {
+                best = (cost, u);
+            }
+        }
+        var[c] = best.1;
+    }
+    var
 }
 
 /// Clamps tiny negative weights to zero and renormalizes to sum 1.
