@@ -6,8 +6,10 @@
 //!   built-in synthetic actor.
 //! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
 //! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
+//! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
 
 pub mod atomic_file;
+pub mod baseline;
 pub mod bundles;
 pub mod dataset;
 pub mod lgi;

@@ -408,7 +408,7 @@ fn vertex_coords(mesh: &Mesh) -> (Vec<Point2<f64>>, Vec<u32>) {
 }
 
 /// For each vertex, the nearest vertex (3D) flagged in `has`; itself when flagged.
-fn nearest_sources(positions: &[Point3<f64>], has: &[bool]) -> Vec<u32> {
+pub fn nearest_sources(positions: &[Point3<f64>], has: &[bool]) -> Vec<u32> {
     use rayon::prelude::*;
     let targets: Vec<u32> = (0..positions.len() as u32)
         .filter(|&v| has[v as usize])
