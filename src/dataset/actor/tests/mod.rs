@@ -837,3 +837,19 @@ fn many_random_identities_build_cleanly() {
         );
     }
 }
+
+#[test]
+fn actor_is_shareable_across_threads() {
+    fn send_sync<T: Send + Sync>() {}
+    send_sync::<Actor>();
+    let a = actor();
+    assert_eq!(a.eyeball_vertices()[0].len(), 314);
+    assert_eq!(
+        a.neutral().vertex_count(),
+        18_355,
+        "update the module docs' counts"
+    );
+    let names: HashSet<&str> = a.wrinkle_depths(&[]).iter().map(|&(n, _)| n).collect();
+    assert_eq!(names.len(), 12);
+    assert!(a.wrinkle_depths(&a.weights(&[("browInnerUp", 1.0)]))[0].1 == 1.0);
+}
