@@ -191,9 +191,36 @@ impl Actor {
         )?;
         let normals = vertex_normals(&neutral);
 
-        // Local frames of the skin vertices: tangent toward +u by central differences
-        // on the surface, made orthogonal to the mesh normal.
+        // Local frames of the skin vertices: the tangent toward +u is the chord between
+        // the polygon neighbours of smallest and largest `u` (seam-aware), made
+        // orthogonal to the mesh normal.
         let neutral_lids = [LidState::default(); 2];
+        let skin_len = topo.skin.len();
+        let mut side_nbrs = vec![(f64::INFINITY, u32::MAX, f64::NEG_INFINITY, u32::MAX); skin_len];
+        let wrap = |du: f64| {
+            let period = 2.0 * surface::U_SEAM;
+            du - period * (du / period).round()
+        };
+        for f in neutral.faces() {
+            for (a, &va) in f.iter().enumerate() {
+                let vb = f[(a + 1) % f.len()];
+                for (x, y) in [(va, vb), (vb, va)] {
+                    let (xi, yi) = (x as usize, y as usize);
+                    if xi >= skin_len || yi >= skin_len {
+                        continue;
+                    }
+                    let du = wrap(topo.skin[yi].u - topo.skin[xi].u);
+                    let e = &mut side_nbrs[xi];
+                    if du < e.0 {
+                        (e.0, e.1) = (du, y);
+                    }
+                    if du > e.2 {
+                        (e.2, e.3) = (du, y);
+                    }
+                }
+            }
+        }
+        let positions = &neutral.positions;
         let frames: Vec<Frame> = topo
             .skin
             .iter()
@@ -201,21 +228,11 @@ impl Actor {
             .map(|(k, sv)| {
                 let n = normals[k];
                 let (u, v) = topo.skin_param(sv, &neutral_lids);
-                let tu_raw = if sv.kind == GridKind::Pole {
+                let (_, left, _, right) = side_nbrs[k];
+                let tu_raw = if sv.kind == GridKind::Pole || left == u32::MAX || right == u32::MAX {
                     Vector3::x()
                 } else {
-                    let h = 0.3;
-                    let at = |du: f64| {
-                        let (uu, vv) = topo.skin_param(
-                            &topology::SkinVertex {
-                                u: sv.u + du,
-                                ..*sv
-                            },
-                            &neutral_lids,
-                        );
-                        surface.point(uu, vv)
-                    };
-                    at(h) - at(-h)
+                    positions[right as usize] - positions[left as usize]
                 };
                 let tu = (tu_raw - n * n.dot(&tu_raw))
                     .try_normalize(1e-12)

@@ -853,3 +853,41 @@ fn actor_is_shareable_across_threads() {
     assert_eq!(names.len(), 12);
     assert!(a.wrinkle_depths(&a.weights(&[("browInnerUp", 1.0)]))[0].1 == 1.0);
 }
+
+#[test]
+fn any_accepted_params_build_or_fail_cleanly() {
+    // Proportions drawn anywhere in their accepted ranges (wider than `from_seed`).
+    let mut rng = params::SplitMix64::new(42);
+    let (mut built, mut rejected) = (0, 0);
+    for _ in 0..24 {
+        let mut u = |lo: f64, hi: f64| rng.uniform(lo, hi);
+        let p = ActorParams {
+            head_width_mm: u(120.0, 185.0),
+            head_height_mm: u(190.0, 270.0),
+            head_depth_mm: u(160.0, 230.0),
+            face_length_mm: u(100.0, 140.0),
+            nose_length_mm: u(34.0, 56.0),
+            nose_protrusion_mm: u(14.0, 28.0),
+            nose_width_mm: u(26.0, 44.0),
+            jaw_width_mm: u(85.0, 135.0),
+            lip_width_mm: u(40.0, 62.0),
+            lip_fullness_mm: u(1.0, 8.0),
+            eye_spacing_mm: u(54.0, 74.0),
+            brow_prominence_mm: u(0.0, 10.0),
+            cheek_fullness_mm: u(0.0, 10.0),
+            chin_prominence_mm: u(0.0, 9.0),
+            wrinkle_depth_scale: u(0.0, 3.0),
+            seed: 3,
+        };
+        match Actor::new(&p) {
+            Ok(a) => {
+                check_uv_chart(&a);
+                built += 1;
+            }
+            Err(ActorError::InvalidParam { .. }) => rejected += 1,
+            Err(e) => panic!("accepted parameters failed to build: {e} ({p:?})"),
+        }
+    }
+    println!("{built} built, {rejected} rejected as inconsistent");
+    assert!(built > 10);
+}
