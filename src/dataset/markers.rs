@@ -13,8 +13,8 @@ use nalgebra::Vector3;
 
 use super::Dataset;
 use crate::atomic_file::write_atomically;
-use crate::mesh::geodesic::update_edge_graph_distances;
 use crate::mesh::{Topology, vertex_normals};
+use crate::mesh::{edge_graph_distances, update_edge_graph_distances};
 
 /// Errors from reading, writing or generating a marker layout.
 #[derive(Debug, thiserror::Error)]
@@ -70,6 +70,14 @@ impl MarkerLayout {
     /// Whether the layout has no markers.
     pub fn is_empty(&self) -> bool {
         self.markers.is_empty()
+    }
+
+    /// Number of markers that count for head stabilization with weight at least 0.5.
+    pub fn stabilizing_count(&self) -> usize {
+        self.markers
+            .iter()
+            .filter(|m| m.stabilize_weight >= 0.5)
+            .count()
     }
 
     /// Index of the marker called `name`.
@@ -230,15 +238,20 @@ pub struct LayoutParams {
     /// or tracked there. Default 5 mm.
     pub min_border_distance_mm: f64,
     /// Largest angle between a marker's normal and the forward axis (+z of the head frame,
-    /// toward the helmet cameras), degrees: dots facing away are not seen. Default 70°.
+    /// toward the helmet cameras), degrees: dots facing away are foreshortened to slivers or
+    /// not seen at all. Default 60° (a dot seen at 60° is still half as wide as it is tall).
     pub max_view_angle_deg: f64,
-    /// Quantile over the dataset's shapes of a vertex's displacement that measures how much
-    /// it moves with expression. 0.75 means "stays put in three expressions out of four",
-    /// which keeps forehead markers (moved only by brow shapes) stable. Default 0.75.
-    pub stabilize_quantile: f64,
-    /// Motion scale σ of the stabilization weight `w = exp(−(m/σ)²)`, millimetres; weights
-    /// under 0.05 become 0. Default 0.5 mm.
+    /// Motion scale σ of the stabilization weight `w = exp(−(m/σ)²)`, where `m` is the
+    /// root-mean-square displacement of the marker's vertex over the dataset's shapes,
+    /// millimetres; weights under 0.05 become 0. With the default 1 mm, the nose bridge and
+    /// temples (moved by almost nothing) get about 1, the forehead (moved only by the brow
+    /// shapes) 0.5 to 1, cheeks and lips low, and chin and jaw (moved by the jaw shapes) 0.
+    /// Default 1 mm.
     pub stabilize_scale_mm: f64,
+    /// Vertices markers may go on (inclusive range), within the dataset's face vertices;
+    /// `None` means all face vertices. For ICT-FaceKit, `0..=6705` is the face without ears
+    /// and neck. Default `None`.
+    pub region: Option<std::ops::RangeInclusive<u32>>,
 }
 
 impl Default for LayoutParams {
@@ -246,9 +259,9 @@ impl Default for LayoutParams {
         Self {
             count: 120,
             min_border_distance_mm: 5.0,
-            max_view_angle_deg: 70.0,
-            stabilize_quantile: 0.75,
-            stabilize_scale_mm: 0.5,
+            max_view_angle_deg: 60.0,
+            stabilize_scale_mm: 1.0,
+            region: None,
         }
     }
 }
@@ -273,9 +286,6 @@ impl LayoutParams {
         if !(self.max_view_angle_deg > 0.0 && self.max_view_angle_deg <= 180.0) {
             return bad("max_view_angle_deg", self.max_view_angle_deg.to_string());
         }
-        if !(0.0..=1.0).contains(&self.stabilize_quantile) {
-            return bad("stabilize_quantile", self.stabilize_quantile.to_string());
-        }
         if !(self.stabilize_scale_mm > 0.0 && self.stabilize_scale_mm.is_finite()) {
             return bad("stabilize_scale_mm", self.stabilize_scale_mm.to_string());
         }
@@ -283,7 +293,8 @@ impl LayoutParams {
     }
 }
 
-/// Vertices where a marker may be painted: face vertices used by a triangle, at least
+/// Vertices where a marker may be painted: face vertices (within `params.region` when
+/// given) used by a triangle, at least
 /// `min_border_distance_mm` along the mesh from the face region's border, facing the
 /// cameras within `max_view_angle_deg`. Returned ascending.
 ///
@@ -318,10 +329,7 @@ pub fn paintable_vertices(
             border.push(v as u32);
         }
     }
-    let mut dist = vec![f64::INFINITY; n];
-    for &b in &border {
-        update_edge_graph_distances(mesh, topology, b, &mut dist);
-    }
+    let dist = edge_graph_distances(mesh, topology, &border, f64::INFINITY);
     let normals = vertex_normals(mesh);
     let cos_max = params.max_view_angle_deg.to_radians().cos();
     let forward = Vector3::z();
@@ -329,6 +337,10 @@ pub fn paintable_vertices(
         .face_vertex_indices()
         .filter(|&v| {
             used[v]
+                && params
+                    .region
+                    .as_ref()
+                    .is_none_or(|r| r.contains(&(v as u32)))
                 && dist[v] >= params.min_border_distance_mm
                 && normals[v].dot(&forward) >= cos_max
         })
@@ -401,7 +413,7 @@ pub fn generate_layout(
         update_edge_graph_distances(mesh, &topology, next, &mut dist);
     }
 
-    let motion = vertex_motion(dataset, params.stabilize_quantile);
+    let motion = vertex_motion(dataset);
     let mut markers: Vec<(u32, f64)> = chosen
         .into_iter()
         .map(|v| {
@@ -433,23 +445,23 @@ pub fn generate_layout(
     })
 }
 
-/// How much each vertex moves with expression: the `quantile` over the dataset's shapes of
-/// its displacement from the neutral, millimetres (#V). Zero for a dataset without shapes.
-pub fn vertex_motion(dataset: &Dataset, quantile: f64) -> Vec<f64> {
+/// How much each vertex moves with expression: the root-mean-square over the dataset's
+/// shapes of its displacement from the neutral, millimetres (#V). Zero for a dataset
+/// without shapes.
+pub fn vertex_motion(dataset: &Dataset) -> Vec<f64> {
     let n = dataset.vertex_count();
     let k = dataset.shapes.len();
     if k == 0 {
         return vec![0.0; n];
     }
-    let idx = ((k - 1) as f64 * quantile).round() as usize;
-    let mut d = vec![0.0; k];
     (0..n)
         .map(|v| {
-            for (s, shape) in dataset.shapes.iter().enumerate() {
-                d[s] = (shape.positions[v] - dataset.neutral.positions[v]).norm();
-            }
-            let (_, x, _) = d.select_nth_unstable_by(idx.min(k - 1), f64::total_cmp);
-            *x
+            let sum: f64 = dataset
+                .shapes
+                .iter()
+                .map(|s| (s.positions[v] - dataset.neutral.positions[v]).norm_squared())
+                .sum();
+            (sum / k as f64).sqrt()
         })
         .collect()
 }
@@ -502,5 +514,215 @@ mod tests {
                 .to_string()
                 .contains("stabilize_scale_mm")
         );
+    }
+}
+
+#[cfg(test)]
+mod ict_tests {
+    use super::*;
+    use crate::dataset::{LoadOptions, load_dataset};
+
+    /// The ICT-FaceKit dataset, or `None` (with the reason printed) when the data is absent.
+    fn ict() -> Option<Dataset> {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        if !root
+            .join("../shared/data/ict-facekit/generic_neutral_mesh.obj")
+            .is_file()
+        {
+            eprintln!("skipped: ICT-FaceKit data not found at ../shared/data/ict-facekit");
+            return None;
+        }
+        let manifest = root.join("configs/datasets/ict-facekit.toml");
+        Some(
+            load_dataset(
+                &manifest,
+                &LoadOptions {
+                    no_cache: true,
+                    ..Default::default()
+                },
+            )
+            .unwrap(),
+        )
+    }
+
+    #[test]
+    fn ict_layout_is_deterministic_spread_and_weighted_by_motion() {
+        let Some(ds) = ict() else { return };
+        let params = LayoutParams {
+            region: Some(0..=6705),
+            ..LayoutParams::default()
+        };
+        let a = generate_layout(&ds, &params).unwrap();
+        let b = generate_layout(&ds, &params).unwrap();
+        assert_eq!(a, b, "generation must be deterministic");
+        assert_eq!(a.len(), 120);
+        a.validate_for(&ds).unwrap();
+
+        // Exclusions: every marker is paintable (far from the face border, facing forward).
+        let topo = Topology::new(&ds.neutral);
+        let paintable = paintable_vertices(&ds, &topo, &params);
+        for m in &a.markers {
+            assert!(
+                paintable.binary_search(&m.vertex).is_ok(),
+                "{} not paintable",
+                m.name
+            );
+        }
+        // ... and the border really is avoided: no marker within 5 mm of the lip line or an
+        // eyelid margin, measured independently from the mesh boundary + non-face vertices.
+        let mut border = Vec::new();
+        let mask = topo.boundary_vertex_mask();
+        for v in ds.face_vertex_indices() {
+            if mask[v]
+                || topo
+                    .neighbors(v as u32)
+                    .iter()
+                    .any(|&u| !ds.is_face_vertex(u))
+            {
+                border.push(v as u32);
+            }
+        }
+        let d = edge_graph_distances(&ds.neutral, &topo, &border, f64::INFINITY);
+        for m in &a.markers {
+            assert!(d[m.vertex as usize] >= 5.0 - 1e-9);
+        }
+
+        // Spread: nearest-neighbour spacing along the mesh is even (no clumps). Distances
+        // are along the surface: an upper-lip and a lower-lip marker may be close in space.
+        let nn: Vec<f64> = a
+            .markers
+            .iter()
+            .map(|m| {
+                let d = edge_graph_distances(&ds.neutral, &topo, &[m.vertex], f64::INFINITY);
+                a.markers
+                    .iter()
+                    .filter(|o| o.vertex != m.vertex)
+                    .map(|o| d[o.vertex as usize])
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        let mean_nn = nn.iter().sum::<f64>() / nn.len() as f64;
+        let min_nn = nn.iter().copied().fold(f64::INFINITY, f64::min);
+        eprintln!("ICT layout: nearest-neighbour spacing mean {mean_nn:.1} mm, min {min_nn:.1} mm");
+        assert!(
+            min_nn > 0.6 * mean_nn,
+            "markers clump: min {min_nn} vs mean {mean_nn}"
+        );
+        let (lo, hi) = a.markers.iter().fold(
+            (ds.neutral.positions[0], ds.neutral.positions[0]),
+            |(lo, hi), m| {
+                let p = ds.neutral.positions[m.vertex as usize];
+                (lo.inf(&p), hi.sup(&p))
+            },
+        );
+        eprintln!("ICT layout: markers span {lo:?} to {hi:?}");
+
+        // Weights follow motion: stable markers barely move, and the stable set sits above
+        // the mouth (forehead, nose bridge, temples) while the mouth markers get 0.
+        let motion = vertex_motion(&ds);
+        let stable: Vec<&Marker> = a
+            .markers
+            .iter()
+            .filter(|m| m.stabilize_weight >= 0.5)
+            .collect();
+        let zero: Vec<&Marker> = a
+            .markers
+            .iter()
+            .filter(|m| m.stabilize_weight == 0.0)
+            .collect();
+        eprintln!(
+            "ICT layout: {} stable, {} zero-weight markers",
+            stable.len(),
+            zero.len()
+        );
+        assert!(
+            stable.len() >= 10,
+            "too few stabilizing markers: {}",
+            stable.len()
+        );
+        assert!(!zero.is_empty());
+        for m in &stable {
+            assert!(motion[m.vertex as usize] < 1.5);
+        }
+        let mean_y = |ms: &[&Marker]| {
+            ms.iter()
+                .map(|m| ds.neutral.positions[m.vertex as usize].y)
+                .sum::<f64>()
+                / ms.len() as f64
+        };
+        assert!(mean_y(&stable) > mean_y(&zero) + 20.0);
+    }
+}
+
+#[cfg(test)]
+mod actor_tests {
+    use super::*;
+    use crate::dataset::actor::{Actor, ActorParams, Region};
+    use crate::mesh::edge_graph_distances;
+
+    #[test]
+    fn builtin_actor_layout_respects_count_exclusions_and_motion() {
+        let actor = Actor::new(&ActorParams::default()).unwrap();
+        let ds = actor.to_dataset();
+        let params = LayoutParams::default();
+        let layout = generate_layout(&ds, &params).unwrap();
+        assert_eq!(layout.len(), params.count);
+        assert_eq!(layout, generate_layout(&ds, &params).unwrap());
+        layout.validate_for(&ds).unwrap();
+
+        // No marker within 5 mm (along the mesh) of the eye and mouth openings.
+        let topo = Topology::new(&ds.neutral);
+        let mask = topo.boundary_vertex_mask();
+        let openings: Vec<u32> = ds
+            .face_vertex_indices()
+            .filter(|&v| mask[v])
+            .map(|v| v as u32)
+            .collect();
+        let d = edge_graph_distances(&ds.neutral, &topo, &openings, f64::INFINITY);
+        let regions = actor.regions();
+        for m in &layout.markers {
+            assert!(
+                d[m.vertex as usize] >= 5.0,
+                "{} is {} mm from an opening",
+                m.name,
+                d[m.vertex as usize]
+            );
+            assert!(regions[m.vertex as usize].is_face());
+        }
+
+        // Weights by region: skull-rigid regions high, mouth and jaw zero.
+        let mean_weight = |wanted: &[Region]| {
+            let w: Vec<f64> = layout
+                .markers
+                .iter()
+                .filter(|m| wanted.contains(&regions[m.vertex as usize]))
+                .map(|m| m.stabilize_weight)
+                .collect();
+            assert!(!w.is_empty(), "no marker in {wanted:?}");
+            w.iter().sum::<f64>() / w.len() as f64
+        };
+        let rigid = mean_weight(&[Region::Temple, Region::Nose]);
+        let forehead = mean_weight(&[Region::Forehead]);
+        let mouth = mean_weight(&[Region::UpperLip, Region::LowerLip, Region::Chin]);
+        let jaw = mean_weight(&[Region::Jaw]);
+        eprintln!(
+            "builtin layout weights: temple+nose {rigid:.2}, forehead {forehead:.2}, \
+             lips+chin {mouth:.2}, jaw {jaw:.2}"
+        );
+        assert!(rigid > 0.8, "{rigid}");
+        assert!(forehead > 0.4, "{forehead}");
+        assert!(mouth < 0.3, "{mouth}");
+        // The weight follows the motion rule exactly, marker by marker.
+        let motion = vertex_motion(&ds);
+        for m in &layout.markers {
+            let rms = motion[m.vertex as usize];
+            if rms > 2.0 {
+                assert_eq!(m.stabilize_weight, 0.0, "{} moves {rms} mm", m.name);
+            }
+            if rms < 0.1 {
+                assert!(m.stabilize_weight >= 0.99, "{} moves {rms} mm", m.name);
+            }
+        }
+        assert_eq!(jaw, 0.0, "the jaw moves with every jaw shape");
     }
 }

@@ -1,7 +1,8 @@
 //! Polygon meshes: the [`Mesh`] type, OBJ/PLY I/O, topology and differential operators.
 //!
-//! This is the lowest geometry layer of helmcap: it depends only on `nalgebra`,
-//! `nalgebra-sparse` and the standard library, never on a higher module.
+//! This is the lowest geometry layer of helmcap: it depends on `nalgebra`,
+//! `nalgebra-sparse`, `tracing` (warnings about skipped OBJ statements) and
+//! [`crate::atomic_file`], never on a higher module.
 //!
 //! A [`Mesh`] keeps its polygons exactly as given (quads stay quads, so exports keep the
 //! artist's topology) and carries a triangulated view ([`Mesh::triangles`]) that every

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Sets up the machine if needed and runs the whole test suite (unit and integration tests).
+# Tests that need the ICT-FaceKit data look for ../shared/data/ict-facekit and print why
+# they skip when it is absent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+if [ -f "$HOME/.cargo/env" ]; then . "$HOME/.cargo/env"; fi
+cargo test --locked "$@"

@@ -1,0 +1,115 @@
+//! Subcommands, one file each. Every command validates its input and reports one clear
+//! error line; long work shows a progress bar.
+
+mod bench;
+mod dataset;
+mod demo;
+mod markers;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use helmcap::dataset::{Dataset, LoadOptions, actor};
+
+/// helmcap: facial performance capture from helmet-mounted stereo cameras.
+#[derive(Debug, Parser)]
+#[command(version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v debug, -vv trace). RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Synthetic session of the built-in actor through everything that exists so far.
+    Demo(demo::DemoArgs),
+    /// Inspect, cache or synthesize datasets of face shapes.
+    #[command(subcommand)]
+    Dataset(dataset::DatasetCommand),
+    /// Marker layouts.
+    #[command(subcommand)]
+    Markers(markers::MarkersCommand),
+    /// Release-mode benchmarks (median of several runs).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
+pub fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "helmcap=info,warn",
+        1 => "helmcap=debug,info",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .without_time()
+        .try_init();
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Demo(a) => demo::run(a),
+        Command::Dataset(c) => dataset::run(c),
+        Command::Markers(c) => markers::run(c),
+        Command::Bench(c) => bench::run(c),
+    }
+}
+
+/// How a command names its dataset: a manifest path, or `builtin` / `builtin:SEED` for the
+/// built-in synthetic actor (seed 0 is the default actor).
+#[derive(Debug, Clone, clap::Args)]
+pub struct DatasetArgs {
+    /// Dataset manifest (TOML), or `builtin[:SEED]` for the built-in synthetic actor.
+    #[arg(long, short = 'd', value_name = "MANIFEST")]
+    pub dataset: String,
+    /// Read and write no dataset cache.
+    #[arg(long)]
+    pub no_cache: bool,
+    /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
+    #[arg(long, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+}
+
+impl DatasetArgs {
+    /// Loads the dataset, with a progress bar for manifests.
+    pub fn load(&self) -> anyhow::Result<Dataset> {
+        if let Some(params) = builtin_params(&self.dataset)? {
+            let actor = actor::Actor::new(&params).context("building the built-in actor")?;
+            return Ok(actor.to_dataset());
+        }
+        let path = Path::new(&self.dataset);
+        let options = LoadOptions {
+            cache_dir: self.cache_dir.clone(),
+            no_cache: self.no_cache,
+            progress: true,
+        };
+        helmcap::dataset::load_dataset(path, &options)
+            .with_context(|| format!("loading dataset {}", path.display()))
+    }
+}
+
+/// The built-in actor's parameters when `s` names it: `builtin` is the standard actor,
+/// `builtin:SEED` another identity.
+fn builtin_params(s: &str) -> anyhow::Result<Option<actor::ActorParams>> {
+    match s.strip_prefix("builtin") {
+        Some("") => Ok(Some(actor::ActorParams::default())),
+        Some(rest) => match rest.strip_prefix(':') {
+            Some(seed) => seed
+                .parse()
+                .map(|seed| Some(actor::ActorParams::from_seed(seed)))
+                .with_context(|| format!("builtin actor seed {seed:?} is not a whole number")),
+            None => Ok(None),
+        },
+        None => Ok(None),
+    }
+}
