@@ -7,6 +7,7 @@
 //! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
 //! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
 //! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
+//! - [`solve`]: the solve stage (bundles to dense mesh by any method) and its benchmark.
 
 pub mod atomic_file;
 pub mod baseline;
@@ -14,3 +15,4 @@ pub mod bundles;
 pub mod dataset;
 pub mod lgi;
 pub mod mesh;
+pub mod solve;

@@ -10,7 +10,7 @@ pub mod blendshape;
 pub mod rbf;
 
 pub use blendshape::{BlendshapeParams, BlendshapeSolver};
-pub use rbf::{RbfKernel, RbfMetric, RbfParams, RbfSolver};
+pub use rbf::{RbfKernel, RbfParams, RbfSolver};
 
 use crate::bundles::FrameBundles;
 

@@ -14,18 +14,101 @@ pub fn tet_barycentric(p: &[Point3<f64>; 4], x: &Point3<f64>) -> Option<[f64; 4]
     Some([1.0 - w.x - w.y - w.z, w.x, w.y, w.z])
 }
 
-/// The inverse edge matrix of a tetrahedron (`[p1−p0, p2−p0, p3−p0]⁻¹`), rows as `f32`,
-/// for a fast containment pre-test; `None` when degenerate.
-pub fn tet_inverse_f32(p: &[Point3<f64>; 4]) -> Option<[[f32; 3]; 3]> {
-    let m = Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
-    let inv = m.try_inverse()?;
-    let mut out = [[0f32; 3]; 3];
-    for (r, row) in out.iter_mut().enumerate() {
-        for (c, v) in row.iter_mut().enumerate() {
-            *v = inv[(r, c)] as f32;
+/// Signed volume (times 6) of the tetrahedron `a b c d`: `det[b − a, c − a, d − a]`.
+pub fn orient(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>, d: &Point3<f64>) -> f64 {
+    (b - a).dot(&(c - a).cross(&(d - a)))
+}
+
+/// Index of the triple `i < j < k` in the combinatorial order of [`TripleTable`].
+#[inline]
+pub fn triple_index(i: usize, j: usize, k: usize) -> usize {
+    k * (k - 1) * (k - 2) / 6 + j * (j - 1) / 2 + i
+}
+
+/// Orientations `T(i, j, k) = det[p_i − x, p_j − x, p_k − x]` of a query point `x` against
+/// every triple of a point cloud, so that the barycentric coordinates of `x` in any
+/// tetrahedron `a < b < c < d` of the cloud are four look-ups:
+///
+/// `w = (T(b,c,d), −T(a,c,d), T(a,b,d), −T(a,b,c)) / det[b − a, c − a, d − a]`.
+///
+/// For the all-combinations tetrahedralization of §4.1 this is far cheaper than a
+/// per-tetrahedron solve: `C(n, 3)` determinants per frame serve `C(n, 4)` tetrahedra.
+#[derive(Debug, Default, Clone)]
+pub struct TripleTable {
+    values: Vec<f64>,
+    rel: Vec<nalgebra::Vector3<f64>>,
+}
+
+impl TripleTable {
+    /// Fills the table for `points` and query `x`.
+    pub fn fill(&mut self, points: &[Point3<f64>], x: &Point3<f64>) {
+        let n = points.len();
+        self.rel.clear();
+        self.rel.extend(points.iter().map(|p| p - x));
+        self.values.clear();
+        self.values
+            .resize(n * n.saturating_sub(1) * n.saturating_sub(2) / 6, 0.0);
+        for k in 2..n {
+            for j in 1..k {
+                let c = self.rel[j].cross(&self.rel[k]);
+                let base = triple_index(0, j, k);
+                for i in 0..j {
+                    self.values[base + i] = self.rel[i].dot(&c);
+                }
+            }
         }
     }
-    Some(out)
+
+    /// The four face triples of tetrahedron `t` (corners ascending) in the order the
+    /// barycentric coordinates need them (see [`TripleTable::inside`]).
+    pub fn faces(t: &[u16; 4]) -> [u32; 4] {
+        let (a, b, c, d) = (t[0] as usize, t[1] as usize, t[2] as usize, t[3] as usize);
+        [
+            triple_index(b, c, d) as u32,
+            triple_index(a, c, d) as u32,
+            triple_index(a, b, d) as u32,
+            triple_index(a, b, c) as u32,
+        ]
+    }
+
+    /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
+    /// ([`TripleTable::faces`]) and `inv_volume = 1 / det[b − a, c − a, d − a]`, or `None`
+    /// as soon as one is below `slack` (the query is outside).
+    #[inline]
+    pub fn inside(&self, faces: &[u32; 4], inv_volume: f64, slack: f64) -> Option<[f64; 4]> {
+        let v = &self.values;
+        let w0 = v[faces[0] as usize] * inv_volume;
+        if w0 < slack {
+            return None;
+        }
+        let w1 = -v[faces[1] as usize] * inv_volume;
+        if w1 < slack {
+            return None;
+        }
+        let w2 = v[faces[2] as usize] * inv_volume;
+        if w2 < slack {
+            return None;
+        }
+        let w3 = -v[faces[3] as usize] * inv_volume;
+        if w3 < slack {
+            return None;
+        }
+        Some([w0, w1, w2, w3])
+    }
+
+    /// Barycentric coordinates of the query in tetrahedron `t` (corners ascending) with
+    /// `inv_volume = 1 / det[b − a, c − a, d − a]`.
+    #[inline]
+    pub fn barycentric(&self, t: &[u16; 4], inv_volume: f64) -> [f64; 4] {
+        let (a, b, c, d) = (t[0] as usize, t[1] as usize, t[2] as usize, t[3] as usize);
+        let v = &self.values;
+        [
+            v[triple_index(b, c, d)] * inv_volume,
+            -v[triple_index(a, c, d)] * inv_volume,
+            v[triple_index(a, b, d)] * inv_volume,
+            -v[triple_index(a, b, c)] * inv_volume,
+        ]
+    }
 }
 
 /// Closest point to `x` on the triangle `a b c` (Ericson, Real-Time Collision Detection
@@ -184,6 +267,37 @@ mod tests {
         assert!(w.iter().all(|&v| v > 0.0));
         let flat = [p[0], p[1], p[2], Point3::new(1.0, 1.0, 0.0)];
         assert!(tet_barycentric(&flat, &x).is_none());
+    }
+
+    #[test]
+    fn triple_table_gives_barycentrics() {
+        let pts = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2.0, 0.1, 0.0),
+            Point3::new(0.3, 3.0, 0.0),
+            Point3::new(0.0, 0.2, 4.0),
+            Point3::new(1.0, 1.0, 1.0),
+        ];
+        let x = Point3::new(0.4, 0.6, 0.5);
+        let mut table = TripleTable::default();
+        table.fill(&pts, &x);
+        for t in [[0u16, 1, 2, 3], [0, 1, 2, 4], [1, 2, 3, 4], [0, 2, 3, 4]] {
+            let p = [
+                pts[t[0] as usize],
+                pts[t[1] as usize],
+                pts[t[2] as usize],
+                pts[t[3] as usize],
+            ];
+            let inv = 1.0 / orient(&p[0], &p[1], &p[2], &p[3]);
+            let w = table.barycentric(&t, inv);
+            let expect = tet_barycentric(&p, &x).unwrap();
+            for k in 0..4 {
+                assert!(
+                    (w[k] - expect[k]).abs() < 1e-12,
+                    "{t:?}: {w:?} vs {expect:?}"
+                );
+            }
+        }
     }
 
     #[test]

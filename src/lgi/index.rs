@@ -33,10 +33,15 @@ pub struct MarkerIndex {
     pub deformation_mm: Vec<f64>,
     /// Tetrahedra (or lower simplices) over the points.
     pub simplices: Simplices,
-    /// Inverse edge matrices of the tetrahedra (`f32`, for the containment pre-test).
-    pub inverses: Vec<[[f32; 3]; 3]>,
+    /// `1 / det[b − a, c − a, d − a]` of each tetrahedron (see
+    /// [`super::barycentric::TripleTable`]).
+    pub inv_volume: Vec<f64>,
+    /// Face triples of each tetrahedron ([`super::barycentric::TripleTable::faces`]).
+    pub faces: Vec<[u32; 4]>,
     /// Grid over the tetrahedra (`None` below dimension 3).
     pub grid: Option<TetGrid>,
+    /// Convex hull triangles of the points (empty below dimension 3).
+    pub hull: Vec<[u16; 3]>,
     /// Neighbouring markers (Delaunay neighbours in UV space).
     pub neighbors: Vec<u32>,
     /// `variants × neighbors` positions of each neighbour's vertex in each variant's shape.
@@ -230,8 +235,8 @@ impl LgiIndex {
                     params.max_tet_edge_mm,
                     params.max_tets_per_marker,
                 );
-                let (inverses, grid) = if simplices.dim == 3 {
-                    let inv: Vec<[[f32; 3]; 3]> = simplices
+                let (inv_volume, grid) = if simplices.dim == 3 {
+                    let inv: Vec<f64> = simplices
                         .corners
                         .iter()
                         .map(|c| {
@@ -241,7 +246,8 @@ impl LgiIndex {
                                 cloud.points[c[2] as usize],
                                 cloud.points[c[3] as usize],
                             ];
-                            super::barycentric::tet_inverse_f32(&p).unwrap_or([[0.0; 3]; 3])
+                            let o = super::barycentric::orient(&p[0], &p[1], &p[2], &p[3]);
+                            if o != 0.0 { 1.0 / o } else { 0.0 }
                         })
                         .collect();
                     let budget =
@@ -285,6 +291,20 @@ impl LgiIndex {
                     }
                 }
                 let lower_dim = simplices.dim < 3;
+                let faces: Vec<[u32; 4]> = if simplices.dim == 3 {
+                    simplices
+                        .corners
+                        .iter()
+                        .map(super::barycentric::TripleTable::faces)
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                let hull = if simplices.dim == 3 {
+                    super::hull::hull_faces(&cloud.points)
+                } else {
+                    Vec::new()
+                };
                 let still = cloud.still;
                 let merged = cloud.merged;
                 let grid_entries = grid.as_ref().map_or(0, TetGrid::entries);
@@ -298,7 +318,9 @@ impl LgiIndex {
                         variant_position,
                         deformation_mm,
                         simplices,
-                        inverses,
+                        faces,
+                        inv_volume,
+                        hull,
                         grid,
                         neighbors,
                         neighbor_positions,

@@ -29,6 +29,7 @@
 
 pub mod barycentric;
 pub mod grid;
+pub mod hull;
 pub mod index;
 pub mod jaw;
 pub mod natural_neighbor;
@@ -107,9 +108,6 @@ pub struct LgiParams {
     /// grid gets coarser to fit. Heavily overlapping tetrahedra make fine grids list the
     /// same tetrahedra in many cells. Default 8.
     pub grid_entries_per_tet: f64,
-    /// Outside every tetrahedron, projections within this distance of the closest one
-    /// compete on the neighbour criterion (§5.1), mm. Default 0.5.
-    pub projection_slack_mm: f64,
     /// Cost added to a candidate per fraction of its corners not shared with the previous
     /// frame's choice (§5.1 temporal coherence), mm. 0 turns the preference off.
     /// Default 0.05.
@@ -134,7 +132,6 @@ impl Default for LgiParams {
             max_tet_edge_mm: 1000.0,
             max_tets_per_marker: 200_000,
             grid_entries_per_tet: 8.0,
-            projection_slack_mm: 0.5,
             temporal_weight_mm: 0.05,
             snap_to_bundles: true,
             use_jaw: true,
@@ -163,7 +160,6 @@ impl LgiParams {
         nonneg("min_motion_mm", self.min_motion_mm)?;
         nonneg("merge_tolerance_mm", self.merge_tolerance_mm)?;
         nonneg("variant_tolerance_mm", self.variant_tolerance_mm)?;
-        nonneg("projection_slack_mm", self.projection_slack_mm)?;
         nonneg("temporal_weight_mm", self.temporal_weight_mm)?;
         if !(0.0..1.0).contains(&self.min_tet_quality) {
             return Err(LgiError::Param {
@@ -403,7 +399,6 @@ impl LgiSolver {
         };
         let xs = self.index_space_bundles(bundles, jaw.as_ref());
         let sp = select::SelectParams {
-            projection_slack_mm: self.params.projection_slack_mm,
             temporal_weight_mm: self.params.temporal_weight_mm,
         };
         let use_prev = self.params.temporal_weight_mm > 0.0;

@@ -2,10 +2,13 @@
 //!
 //! 1. **Inside**: every tetrahedron containing the bundle gives a candidate with the
 //!    bundle's convex barycentric weights, Eq. (1).
-//! 2. **Outside every tetrahedron**: the candidates are the closest points of the tetrahedra
-//!    within `projection_slack_mm` of the closest one ("one could consider not only the
-//!    distance from the bundle under consideration to the resulting surface, but also the
-//!    distances that neighboring bundles would be from the resulting surface").
+//! 2. **Outside every tetrahedron**: the bundle is projected onto the convex hull of the
+//!    point cloud (the union of all four-point tetrahedra), and the candidates are the
+//!    tetrahedra at the projected point ("one could consider not only the distance from
+//!    the bundle under consideration to the resulting surface, but also the distances that
+//!    neighboring bundles would be from the resulting surface"). When pruning left the
+//!    hull point in no tetrahedron, the closest point over the kept tetrahedra is searched
+//!    through the grid.
 //! 3. **Scoring**: a candidate's cost is the root-mean-square distance from the present
 //!    neighbouring bundles to the candidate's surface at their markers (plus, outside, the
 //!    bundle's own projection distance), plus `temporal_weight_mm` times the fraction of its
@@ -16,15 +19,15 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::barycentric::{closest_on_simplex, combine, tet_barycentric};
+use super::barycentric::{TripleTable, closest_on_simplex, combine, tet_barycentric};
 use super::index::MarkerIndex;
 
 /// Weight of the deformation tie-break, per millimetre of patch deformation.
 const TIE_BREAK: f64 = 1e-6;
-/// Slack of the `f32` containment pre-test, in barycentric units.
-const PRETEST_SLACK: f32 = 1e-4;
 /// Smallest barycentric weight still counted as inside in `f64`.
 const INSIDE_SLACK: f64 = -1e-9;
+/// Projections this close to the closest one tie, and the neighbour criterion decides, mm.
+const PROJECTION_TIE_MM: f64 = 1e-6;
 
 /// The local geometry chosen for a marker in a frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,13 +59,15 @@ pub struct Scratch {
     gram: Vec<f64>,
     /// Variant representing each point in this frame.
     rep: Vec<u32>,
+    /// Orientations of the query against every triple of points.
+    table: TripleTable,
+    /// Tetrahedra containing the query, with its barycentric coordinates.
+    hits: Vec<(u32, [f64; 4])>,
 }
 
 /// Selection settings (from [`super::LgiParams`]).
 #[derive(Debug, Clone, Copy)]
 pub struct SelectParams {
-    /// Outside: candidates within this distance of the closest projection, mm.
-    pub projection_slack_mm: f64,
     /// Temporal preference per unshared corner fraction, mm.
     pub temporal_weight_mm: f64,
 }
@@ -176,52 +181,62 @@ pub fn choose(
     if let Some(grid) = &mi.grid {
         // 1. Tetrahedra containing the bundle (ranked with f32 weights, the winner's
         //    weights recomputed in f64 below).
-        for &t in grid.candidates(x) {
-            let t = t as usize;
-            let c = mi.simplices.corners[t];
-            let p0 = mi.points[c[0] as usize];
-            let d = x - p0;
-            let d = [d.x as f32, d.y as f32, d.z as f32];
-            let inv = &mi.inverses[t];
-            let mut w = [0f64; 4];
-            let mut wsum = 0f32;
-            let mut ok = true;
-            for (r, row) in inv.iter().enumerate() {
-                let wi = row[0] * d[0] + row[1] * d[1] + row[2] * d[2];
-                ok &= wi >= -PRETEST_SLACK;
-                wsum += wi;
-                w[r + 1] = f64::from(wi.max(0.0));
+        // Candidate list: the grid cell's when it is short, else every tetrahedron (the
+        // all-combination tetrahedra overlap so much that a cell often lists most of them).
+        let mut hits = std::mem::take(&mut scratch.hits);
+        let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
+                    table: &mut TripleTable,
+                    hits: &mut Vec<(u32, [f64; 4])>,
+                    y: &Point3<f64>,
+                    inside: bool,
+                    self_d2: f64| {
+            table.fill(&mi.points, y);
+            hits.clear();
+            collect_containing(mi, grid, table, y, inside, hits);
+
+            for &(t, mut w) in hits.iter() {
+                clamp_convex(&mut w);
+                consider(best, mi.simplices.corners[t as usize], w, inside, self_d2);
             }
-            if !ok || 1.0 - wsum < -PRETEST_SLACK {
-                continue;
+        };
+        let mut table = std::mem::take(&mut scratch.table);
+        scan(&mut best, &mut table, &mut hits, x, true, 0.0);
+        if best.is_none() {
+            // 2. Outside: project onto the cloud's convex hull (the union of all
+            //    four-point tetrahedra) and choose among the tetrahedra at that point.
+            if let Some(q) = super::hull::closest_on_hull(&mi.points, &mi.hull, x) {
+                scan(
+                    &mut best,
+                    &mut table,
+                    &mut hits,
+                    &q,
+                    false,
+                    (q - x).norm_squared(),
+                );
             }
-            w[0] = f64::from((1.0 - wsum).max(0.0));
-            clamp_convex(&mut w);
-            consider(&mut best, c, w, true, 0.0);
         }
-        // The winner's exact weights; a pre-test false positive falls through to projection.
+        scratch.table = table;
+        scratch.hits = hits;
+        // The winner's exact weights: its barycentric coordinates of the bundle when it
+        // contains it, else the closest point of the tetrahedron (a pre-test false
+        // positive, or a projection).
         if let Some(b) = &mut best {
-            match tet_barycentric(
-                &[
-                    mi.points[b.0[0] as usize],
-                    mi.points[b.0[1] as usize],
-                    mi.points[b.0[2] as usize],
-                    mi.points[b.0[3] as usize],
-                ],
-                x,
-            ) {
+            let p = mi.corners_of(&b.0);
+            match tet_barycentric(&p, x) {
                 Some(mut w) if w.iter().all(|&v| v >= INSIDE_SLACK) => {
                     clamp_convex(&mut w);
                     b.1 = w;
+                    b.2 = true;
                 }
                 _ => {
-                    let p = mi.corners_of(&b.0);
                     b.1 = closest_on_simplex(&p, x);
+                    b.2 = false;
                 }
             }
         }
         if best.is_none() {
-            // 2. Projection onto the tetrahedral volume, via the grid's shells.
+            // 3. The hull point lies in no kept tetrahedron (thin ones were pruned at the
+            //    hull): the closest point over the tetrahedra, via the grid's shells.
             let n = mi.simplices.corners.len();
             if scratch.stamp.len() < n {
                 scratch.stamp.resize(n, 0);
@@ -234,7 +249,6 @@ pub fn choose(
             let epoch = scratch.epoch;
             scratch.found.clear();
             let mut dmin = f64::INFINITY;
-            let slack = params.projection_slack_mm;
             let stamp = &mut scratch.stamp;
             let found = &mut scratch.found;
             grid.visit_shells(x, |_, list| {
@@ -246,16 +260,16 @@ pub fn choose(
                     let p = mi.corners(t as usize);
                     let w = closest_on_simplex(&p, x);
                     let d = (combine(&p, &w) - x).norm();
-                    if d <= dmin + slack {
+                    if d <= dmin + PROJECTION_TIE_MM {
                         found.push((t, w, d));
                         dmin = dmin.min(d);
                     }
                 }
-                let b = dmin + slack;
+                let b = dmin + PROJECTION_TIE_MM;
                 b * b
             });
             for &(t, w, d) in scratch.found.iter() {
-                if d <= dmin + slack {
+                if d <= dmin + PROJECTION_TIE_MM {
                     consider(&mut best, mi.simplices.corners[t as usize], w, false, d * d);
                 }
             }
@@ -272,7 +286,7 @@ pub fn choose(
             cands.push((*c, w, d));
         }
         for (c, w, d) in cands {
-            if d <= dmin + params.projection_slack_mm {
+            if d <= dmin + PROJECTION_TIE_MM {
                 consider(&mut best, c, w, false, d * d);
             }
         }
@@ -343,6 +357,36 @@ fn refine_variants(
         var[c] = best.1;
     }
     var
+}
+
+/// Appends to `hits` the tetrahedra of `mi` containing the point `y` whose orientations
+/// `table` holds, with its barycentric coordinates. Scans the grid cell of `y` when it lists
+/// less than half the tetrahedra, else every tetrahedron; nothing when `y` is outside the
+/// grid box and `strict` (a bundle there is in no tetrahedron).
+fn collect_containing(
+    mi: &MarkerIndex,
+    grid: &super::grid::TetGrid,
+    table: &TripleTable,
+    y: &Point3<f64>,
+    strict: bool,
+    hits: &mut Vec<(u32, [f64; 4])>,
+) {
+    let all = mi.faces.len();
+    let cell = grid.candidates(y);
+    if cell.len() * 2 < all {
+        for &t in cell {
+            let t = t as usize;
+            if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
+                hits.push((t as u32, w));
+            }
+        }
+    } else if grid.contains(y) || !strict {
+        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
+            if let Some(w) = table.inside(f, iv, INSIDE_SLACK) {
+                hits.push((t as u32, w));
+            }
+        }
+    }
 }
 
 /// Clamps tiny negative weights to zero and renormalizes to sum 1.
