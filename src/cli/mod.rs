@@ -5,6 +5,7 @@ mod bench;
 mod dataset;
 mod demo;
 mod markers;
+mod solve;
 
 use std::path::{Path, PathBuf};
 
@@ -33,6 +34,8 @@ enum Command {
     /// Marker layouts.
     #[command(subcommand)]
     Markers(markers::MarkersCommand),
+    /// Reconstruct the dense face of every frame of a bundles CSV.
+    Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -61,6 +64,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
+        Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
     }
 }

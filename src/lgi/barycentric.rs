@@ -96,6 +96,34 @@ impl TripleTable {
         Some([w0, w1, w2, w3])
     }
 
+    /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
+    /// and a lower bound of its distance to the tetrahedron (the largest distance outside
+    /// one of its face planes; 0 inside), or `None` when that bound exceeds `tol_mm`.
+    /// `inv_area2[f]` is `1 / (2 · area)` of triple `f`'s triangle.
+    #[inline]
+    pub fn near(
+        &self,
+        faces: &[u32; 4],
+        inv_volume: f64,
+        inv_area2: &[f64],
+        tol_mm: f64,
+    ) -> Option<([f64; 4], f64)> {
+        let v = &self.values;
+        let mut w = [0.0; 4];
+        let mut d: f64 = 0.0;
+        for k in 0..4 {
+            let t = v[faces[k] as usize];
+            w[k] = if k % 2 == 0 { t } else { -t } * inv_volume;
+            if w[k] < 0.0 {
+                d = d.max(t.abs() * inv_area2[faces[k] as usize]);
+                if d > tol_mm {
+                    return None;
+                }
+            }
+        }
+        Some((w, d))
+    }
+
     /// Barycentric coordinates of the query in tetrahedron `t` (corners ascending) with
     /// `inv_volume = 1 / det[b − a, c − a, d − a]`.
     #[inline]
@@ -109,6 +137,24 @@ impl TripleTable {
             -v[triple_index(a, b, c)] * inv_volume,
         ]
     }
+}
+
+/// `1 / (2 · area)` of the triangle of every triple of `points`, in [`triple_index`]
+/// order (0 for degenerate triangles).
+pub fn triple_inv_area2(points: &[Point3<f64>]) -> Vec<f64> {
+    let n = points.len();
+    let mut out = vec![0.0; n * n.saturating_sub(1) * n.saturating_sub(2) / 6];
+    for k in 2..n {
+        for j in 1..k {
+            for i in 0..j {
+                let a2 = (points[j] - points[i])
+                    .cross(&(points[k] - points[i]))
+                    .norm();
+                out[triple_index(i, j, k)] = if a2 > 0.0 { 1.0 / a2 } else { 0.0 };
+            }
+        }
+    }
+    out
 }
 
 /// Closest point to `x` on the triangle `a b c` (Ericson, Real-Time Collision Detection

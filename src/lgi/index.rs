@@ -38,6 +38,8 @@ pub struct MarkerIndex {
     pub inv_volume: Vec<f64>,
     /// Face triples of each tetrahedron ([`super::barycentric::TripleTable::faces`]).
     pub faces: Vec<[u32; 4]>,
+    /// `1 / (2 · area)` of every triple's triangle (for distances to face planes).
+    pub triple_inv_area2: Vec<f64>,
     /// Grid over the tetrahedra (`None` below dimension 3).
     pub grid: Option<TetGrid>,
     /// Convex hull triangles of the points (empty below dimension 3).
@@ -300,6 +302,11 @@ impl LgiIndex {
                 } else {
                     Vec::new()
                 };
+                let triple_inv_area2 = if simplices.dim == 3 {
+                    super::barycentric::triple_inv_area2(&cloud.points)
+                } else {
+                    Vec::new()
+                };
                 let hull = if simplices.dim == 3 {
                     super::hull::hull_faces(&cloud.points)
                 } else {
@@ -319,6 +326,7 @@ impl LgiIndex {
                         deformation_mm,
                         simplices,
                         faces,
+                        triple_inv_area2,
                         inv_volume,
                         hull,
                         grid,

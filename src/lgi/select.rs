@@ -61,8 +61,9 @@ pub struct Scratch {
     rep: Vec<u32>,
     /// Orientations of the query against every triple of points.
     table: TripleTable,
-    /// Tetrahedra containing the query, with its barycentric coordinates.
-    hits: Vec<(u32, [f64; 4])>,
+    /// Tetrahedra containing (or near) the query, with its barycentric coordinates and
+    /// distance bound.
+    hits: Vec<(u32, [f64; 4], f64)>,
 }
 
 /// Selection settings (from [`super::LgiParams`]).
@@ -70,6 +71,8 @@ pub struct Scratch {
 pub struct SelectParams {
     /// Temporal preference per unshared corner fraction, mm.
     pub temporal_weight_mm: f64,
+    /// Tetrahedra within this distance of the bundle compete too, mm (noisy bundles).
+    pub bundle_tolerance_mm: f64,
 }
 
 /// Chooses the local geometry of marker `mi` for the (unskinned) bundle `x`.
@@ -179,28 +182,42 @@ pub fn choose(
     };
 
     if let Some(grid) = &mi.grid {
-        // 1. Tetrahedra containing the bundle (ranked with f32 weights, the winner's
-        //    weights recomputed in f64 below).
-        // Candidate list: the grid cell's when it is short, else every tetrahedron (the
-        // all-combination tetrahedra overlap so much that a cell often lists most of them).
+        // 1. Tetrahedra containing the bundle (or near it, with a tolerance). Candidate
+        //    list: the grid cell's when it is short, else every tetrahedron (the
+        //    all-combination tetrahedra overlap so much that a cell often lists most of
+        //    them). The winner's weights are recomputed exactly below.
         let mut hits = std::mem::take(&mut scratch.hits);
         let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
                     table: &mut TripleTable,
-                    hits: &mut Vec<(u32, [f64; 4])>,
+                    hits: &mut Vec<(u32, [f64; 4], f64)>,
                     y: &Point3<f64>,
                     inside: bool,
-                    self_d2: f64| {
+                    self_d2: f64,
+                    tol: f64| {
             table.fill(&mi.points, y);
             hits.clear();
-            collect_containing(mi, grid, table, y, inside, hits);
-
-            for &(t, mut w) in hits.iter() {
+            collect_containing(mi, grid, table, y, inside, tol, hits);
+            for &(t, mut w, d) in hits.iter() {
                 clamp_convex(&mut w);
-                consider(best, mi.simplices.corners[t as usize], w, inside, self_d2);
+                consider(
+                    best,
+                    mi.simplices.corners[t as usize],
+                    w,
+                    inside,
+                    self_d2 + d * d,
+                );
             }
         };
         let mut table = std::mem::take(&mut scratch.table);
-        scan(&mut best, &mut table, &mut hits, x, true, 0.0);
+        scan(
+            &mut best,
+            &mut table,
+            &mut hits,
+            x,
+            true,
+            0.0,
+            params.bundle_tolerance_mm,
+        );
         if best.is_none() {
             // 2. Outside: project onto the cloud's convex hull (the union of all
             //    four-point tetrahedra) and choose among the tetrahedra at that point.
@@ -212,6 +229,7 @@ pub fn choose(
                     &q,
                     false,
                     (q - x).norm_squared(),
+                    0.0,
                 );
             }
         }
@@ -360,30 +378,40 @@ fn refine_variants(
 }
 
 /// Appends to `hits` the tetrahedra of `mi` containing the point `y` whose orientations
-/// `table` holds, with its barycentric coordinates. Scans the grid cell of `y` when it lists
-/// less than half the tetrahedra, else every tetrahedron; nothing when `y` is outside the
-/// grid box and `strict` (a bundle there is in no tetrahedron).
+/// `table` holds, with its barycentric coordinates and distance (0); with `tol_mm > 0`
+/// also those within about `tol_mm` of it (distance bound from the face planes). Scans the
+/// grid cell of `y` when it lists less than half the tetrahedra, else every tetrahedron;
+/// nothing when `y` is outside the grid box, `strict` and `tol_mm == 0`.
 fn collect_containing(
     mi: &MarkerIndex,
     grid: &super::grid::TetGrid,
     table: &TripleTable,
     y: &Point3<f64>,
     strict: bool,
-    hits: &mut Vec<(u32, [f64; 4])>,
+    tol_mm: f64,
+    hits: &mut Vec<(u32, [f64; 4], f64)>,
 ) {
     let all = mi.faces.len();
+    if tol_mm > 0.0 {
+        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
+            if let Some((w, d)) = table.near(f, iv, &mi.triple_inv_area2, tol_mm) {
+                hits.push((t as u32, w, d));
+            }
+        }
+        return;
+    }
     let cell = grid.candidates(y);
     if cell.len() * 2 < all {
         for &t in cell {
             let t = t as usize;
             if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
-                hits.push((t as u32, w));
+                hits.push((t as u32, w, 0.0));
             }
         }
     } else if grid.contains(y) || !strict {
         for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
             if let Some(w) = table.inside(f, iv, INSIDE_SLACK) {
-                hits.push((t as u32, w));
+                hits.push((t as u32, w, 0.0));
             }
         }
     }

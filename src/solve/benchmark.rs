@@ -32,7 +32,7 @@ use nalgebra::{Point3, Vector3};
 use super::{Method, SolveParams, Solver};
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout, Shape};
-use crate::lgi::TemporalParams;
+use crate::lgi::{LgiParams, TemporalParams};
 
 /// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
 #[derive(Debug, Clone)]
@@ -398,23 +398,45 @@ pub fn run_dataset(
             eprintln!("{name}: {}", s.index().stats);
         }
         for take in takes {
-            let mut variants: Vec<(String, Option<TemporalParams>)> =
+            // LGI variants over the same index: temporal smoothing on the animated take, the
+            // noisy-input preset on noisy takes.
+            let mut variants: Vec<(String, Option<LgiParams>)> =
                 vec![(method.name().to_string(), None)];
-            if take.animated && method == Method::Lgi && smoothing.is_enabled() {
-                variants.push(("lgi+smooth".to_string(), Some(smoothing)));
+            if method == Method::Lgi {
+                if take.animated && smoothing.is_enabled() {
+                    let p = LgiParams {
+                        smoothing,
+                        ..params.lgi
+                    };
+                    variants.push(("lgi+smooth".to_string(), Some(p)));
+                }
+                if take.condition.starts_with("noise") {
+                    let p = LgiParams {
+                        smoothing: params.lgi.smoothing,
+                        ..LgiParams::noisy()
+                    };
+                    variants.push(("lgi, noisy preset".to_string(), Some(p)));
+                }
             }
-            for (label, smooth) in variants {
+            for (label, lgi_params) in variants {
                 solver.reset();
                 let t = Instant::now();
                 let solved: Vec<Vec<Point3<f64>>> =
-                    match (&mut solver, smooth) {
-                        (Solver::Lgi(s), Some(sm)) => {
-                            let mut p = *s.params();
-                            p.smoothing = sm;
+                    match (&mut solver, lgi_params) {
+                        (Solver::Lgi(s), Some(p)) => {
                             let mut s2 = crate::lgi::LgiSolver::from_index(s.index().clone(), &p)
                                 .map_err(|e| e.to_string())?;
-                            s2.solve_sequence(&take.bundles)
-                                .map_err(|e| e.to_string())?
+                            if take.animated {
+                                s2.solve_sequence(&take.bundles)
+                                    .map_err(|e| e.to_string())?
+                            } else {
+                                let mut out = Vec::with_capacity(take.bundles.len());
+                                for b in &take.bundles {
+                                    s2.reset();
+                                    out.push(s2.solve(b).map_err(|e| e.to_string())?);
+                                }
+                                out
+                            }
                         }
                         (solver, _) => {
                             let mut out = Vec::with_capacity(take.bundles.len());
