@@ -101,6 +101,9 @@ pub struct ReadReport {
     pub unknown_markers: BTreeMap<String, usize>,
 }
 
+/// A frame being read: positions and the line of each marker's row (0: none yet).
+type FrameRows = (Vec<Option<Point3<f64>>>, Vec<usize>);
+
 /// Reads a bundles CSV for `layout` (see the module docs for the policy on bad rows).
 ///
 /// # Errors
@@ -155,7 +158,7 @@ pub fn parse_bundles(
     let n = layout.len();
     let mut report = ReadReport::default();
     // frame -> (positions, line of each marker's row)
-    let mut frames: BTreeMap<u64, (Vec<Option<Point3<f64>>>, Vec<usize>)> = BTreeMap::new();
+    let mut frames: BTreeMap<u64, FrameRows> = BTreeMap::new();
     let mut known_rows = 0usize;
     for (line, row) in lines {
         report.rows += 1;

@@ -24,8 +24,8 @@ fn ict() -> Option<&'static (Dataset, MarkerLayout)> {
         if !data.join("generic_neutral_mesh.obj").exists() {
             return None;
         }
-        let ds = load_dataset(&manifest(), &LoadOptions::default()).unwrap();
-        let layout = generate_layout(&ds, &LayoutParams::default()).unwrap();
+        let ds = load_dataset(&manifest(), &LoadOptions::default()).expect("ICT loads");
+        let layout = generate_layout(&ds, &LayoutParams::default()).expect("layout");
         Some((ds, layout))
     })
     .as_ref()
@@ -52,7 +52,7 @@ fn solver() -> Option<&'static std::sync::Mutex<LgiSolver>> {
     S.get_or_init(|| {
         let (ds, layout) = ict()?;
         Some(std::sync::Mutex::new(
-            LgiSolver::new(ds, layout, &LgiParams::default()).unwrap(),
+            LgiSolver::new(ds, layout, &LgiParams::default()).expect("LGI index"),
         ))
     })
     .as_ref()
@@ -120,9 +120,9 @@ fn verification_every_shape_gives_itself_back() {
 fn actor() -> &'static (Dataset, MarkerLayout, helmcap::dataset::actor::Actor) {
     static A: OnceLock<(Dataset, MarkerLayout, helmcap::dataset::actor::Actor)> = OnceLock::new();
     A.get_or_init(|| {
-        let a = helmcap::dataset::actor::Actor::new(&Default::default()).unwrap();
+        let a = helmcap::dataset::actor::Actor::new(&Default::default()).expect("actor");
         let ds = a.to_dataset();
-        let layout = generate_layout(&ds, &LayoutParams::default()).unwrap();
+        let layout = generate_layout(&ds, &LayoutParams::default()).expect("layout");
         (ds, layout, a)
     })
 }

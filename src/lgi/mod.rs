@@ -188,7 +188,7 @@ impl LgiParams {
                 reason: "must be in [0, 1)",
             });
         }
-        if !(self.max_tet_edge_mm > 0.0) {
+        if self.max_tet_edge_mm.is_nan() || self.max_tet_edge_mm <= 0.0 {
             return Err(LgiError::Param {
                 field: "max_tet_edge_mm",
                 value: self.max_tet_edge_mm.to_string(),
@@ -202,7 +202,7 @@ impl LgiParams {
                 reason: "must be ≥ 1",
             });
         }
-        if !(self.grid_entries_per_tet >= 1.0) {
+        if self.grid_entries_per_tet.is_nan() || self.grid_entries_per_tet < 1.0 {
             return Err(LgiError::Param {
                 field: "grid_entries_per_tet",
                 value: self.grid_entries_per_tet.to_string(),
@@ -366,7 +366,7 @@ impl LgiSolver {
                 ),
             });
         }
-        if !bundles.positions.iter().any(|p| is_usable(p)) {
+        if !bundles.positions.iter().any(is_usable) {
             return Err(LgiError::Frame {
                 frame: bundles.frame,
                 message: "no marker present".into(),

@@ -196,9 +196,8 @@ impl NaturalNeighborWeights {
         let mut offsets = Vec::with_capacity(n + 1);
         let mut entries = Vec::new();
         offsets.push(0u32);
-        for v in 0..n {
-            let s = source[v] as usize;
-            entries.extend_from_slice(&per_vertex[s]);
+        for &s in &source {
+            entries.extend_from_slice(&per_vertex[s as usize]);
             offsets.push(entries.len() as u32);
         }
         let uv = (0..n)
@@ -595,12 +594,12 @@ mod tests {
         // A vertex without weight on marker 2 keeps its weights.
         let all: Vec<u32> = (0..mesh.vertex_count() as u32).collect();
         let full = w.recompute(&present, &all).unwrap();
-        for v in 0..mesh.vertex_count() {
+        for (v, fv) in full.iter().enumerate() {
             if w.of(v).iter().all(|e| e.0 != 2) {
                 let get =
                     |ws: &[(u32, f64)], m: u32| ws.iter().find(|e| e.0 == m).map_or(0.0, |e| e.1);
                 for m in 0..markers.len() as u32 {
-                    let (a, b) = (get(w.of(v), m), get(&full[v], m));
+                    let (a, b) = (get(w.of(v), m), get(fv, m));
                     assert!(
                         (a - b).abs() < 1e-9,
                         "vertex {v} marker {m}: {a} became {b}"

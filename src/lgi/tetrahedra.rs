@@ -158,7 +158,7 @@ pub fn tetrahedralize(
             stats.capped = (total - out.len()) as u64;
             kept = out;
         }
-        kept.sort_by(|a, b| a.1.cmp(&b.1));
+        kept.sort_by_key(|a| a.1);
         stats.kept = kept.len() as u64;
         return (
             Simplices {
