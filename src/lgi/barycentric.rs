@@ -59,6 +59,23 @@ impl TripleTable {
         }
     }
 
+    /// Fills only the `used` triples (`(index, [i, j, k])`, see [`used_triples`]) for
+    /// `points` and query `x`; the other entries keep stale values and must not be read.
+    pub fn fill_used(&mut self, points: &[Point3<f64>], x: &Point3<f64>, used: &[(u32, [u16; 3])]) {
+        let n = points.len();
+        self.rel.clear();
+        self.rel.extend(points.iter().map(|p| p - x));
+        let size = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
+        if self.values.len() != size {
+            self.values.clear();
+            self.values.resize(size, 0.0);
+        }
+        for &(idx, [i, j, k]) in used {
+            let (i, j, k) = (i as usize, j as usize, k as usize);
+            self.values[idx as usize] = self.rel[i].dot(&self.rel[j].cross(&self.rel[k]));
+        }
+    }
+
     /// The four face triples of tetrahedron `t` (corners ascending) in the order the
     /// barycentric coordinates need them (see [`TripleTable::inside`]).
     pub fn faces(t: &[u16; 4]) -> [u32; 4] {
@@ -137,6 +154,27 @@ impl TripleTable {
             -v[triple_index(a, b, c)] * inv_volume,
         ]
     }
+}
+
+/// The distinct face triples of `tets` (corners ascending), as `(index, [i, j, k])` in
+/// ascending index order: all a [`TripleTable`] needs for them.
+pub fn used_triples(tets: &[[u16; 4]]) -> Vec<(u32, [u16; 3])> {
+    let mut out: Vec<(u32, [u16; 3])> = tets
+        .iter()
+        .flat_map(|t| {
+            let (a, b, c, d) = (t[0], t[1], t[2], t[3]);
+            [[b, c, d], [a, c, d], [a, b, d], [a, b, c]]
+        })
+        .map(|f| {
+            (
+                triple_index(f[0] as usize, f[1] as usize, f[2] as usize) as u32,
+                f,
+            )
+        })
+        .collect();
+    out.sort_unstable_by_key(|e| e.0);
+    out.dedup_by_key(|e| e.0);
+    out
 }
 
 /// `1 / (2 · area)` of the triangle of every triple of `points`, in [`triple_index`]

@@ -40,6 +40,8 @@ pub struct MarkerIndex {
     pub faces: Vec<[u32; 4]>,
     /// `1 / (2 · area)` of every triple's triangle (for distances to face planes).
     pub triple_inv_area2: Vec<f64>,
+    /// The face triples the tetrahedra use (see [`super::barycentric::used_triples`]).
+    pub used_triples: Vec<(u32, [u16; 3])>,
     /// Grid over the tetrahedra (`None` below dimension 3).
     pub grid: Option<TetGrid>,
     /// Convex hull triangles of the points (empty below dimension 3).
@@ -302,6 +304,11 @@ impl LgiIndex {
                 } else {
                     Vec::new()
                 };
+                let used_triples = if simplices.dim == 3 {
+                    super::barycentric::used_triples(&simplices.corners)
+                } else {
+                    Vec::new()
+                };
                 let triple_inv_area2 = if simplices.dim == 3 {
                     super::barycentric::triple_inv_area2(&cloud.points)
                 } else {
@@ -327,6 +334,7 @@ impl LgiIndex {
                         simplices,
                         faces,
                         triple_inv_area2,
+                        used_triples,
                         inv_volume,
                         hull,
                         grid,

@@ -5,7 +5,7 @@
 //!
 //! A vertex placed at a marker gets weight 1 on that marker and 0 elsewhere, so the blended
 //! surface passes through every bundle; the weights are continuous, so the surface is C0
-//! (Piper 1993, the paper's [33]).
+//! (Piper 1993, reference 33 of the paper).
 //!
 //! # Vertices the UV Voronoi diagram does not cover
 //! - **Outside the markers' convex hull** (in UV): Sibson coordinates are undefined there.

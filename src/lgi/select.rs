@@ -194,7 +194,7 @@ pub fn choose(
                     inside: bool,
                     self_d2: f64,
                     tol: f64| {
-            table.fill(&mi.points, y);
+            table.fill_used(&mi.points, y, &mi.used_triples);
             hits.clear();
             collect_containing(mi, grid, table, y, inside, tol, hits);
             for &(t, mut w, d) in hits.iter() {
