@@ -12,12 +12,12 @@
 use std::path::Path;
 
 use helmcap::dataset::markers::{LayoutParams, generate_layout};
-use helmcap::dataset::{LoadOptions, actor, load_dataset};
+use helmcap::dataset::{LoadOptions, MarkerLayout, actor, load_dataset};
 use helmcap::lgi::TemporalParams;
 use helmcap::solve::SolveParams;
 use helmcap::solve::benchmark::{
-    Rng, animated_weights, format_table, ict_variants, linear_face, random_weights, run_dataset,
-    takes,
+    Rng, animated_weights, format_table, ict_variants, linear_face, overlapping_pairs,
+    random_weights, run_dataset, takes,
 };
 
 fn env_usize(name: &str, default: usize) -> usize {
@@ -25,6 +25,19 @@ fn env_usize(name: &str, default: usize) -> usize {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
+}
+
+/// The repository's default layout `configs/markers/NAME` (120 markers), or a generated
+/// one when it is missing.
+fn layout_for(root: &Path, name: &str, ds: &helmcap::dataset::Dataset) -> MarkerLayout {
+    let path = root.join("configs/markers").join(name);
+    match MarkerLayout::read_csv(&path) {
+        Ok(l) => l,
+        Err(e) => {
+            eprintln!("{e}: generating a layout instead");
+            generate_layout(ds, &LayoutParams::default()).expect("marker layout")
+        }
+    }
 }
 
 fn main() {
@@ -63,7 +76,7 @@ fn main() {
             &LoadOptions::default(),
         )
         .expect("loading ICT-FaceKit");
-        let layout = generate_layout(&base, &LayoutParams::default()).expect("marker layout");
+        let layout = layout_for(root, "ict-facekit.csv", &base);
         let mut rng = Rng::new(1);
         let n = base.shapes.len();
         let x0 = &base.neutral.positions;
@@ -92,7 +105,7 @@ fn main() {
     if wanted("actor") {
         let a = actor::Actor::new(&actor::ActorParams::default()).expect("built-in actor");
         let ds = a.to_dataset();
-        let layout = generate_layout(&ds, &LayoutParams::default()).expect("marker layout");
+        let layout = layout_for(root, "builtin-actor.csv", &ds);
         let mut rng = Rng::new(3);
         let n = a.expression_names().len();
         let stat: Vec<_> = (0..frames)
@@ -104,6 +117,24 @@ fn main() {
             .collect();
         let t = takes(&layout, &stat, &anim, 4);
         match run_dataset("actor", &ds, &layout, &params, &t, smoothing) {
+            Ok(r) => rows.extend(r),
+            Err(e) => eprintln!("{e}"),
+        }
+        // The actor with 80 captured pair combinations (its true nonlinear model, jaw pose
+        // included), as a capture session would add them.
+        let mut more = ds.clone();
+        for (i, j) in overlapping_pairs(&ds, 80) {
+            let mut w = vec![0.0; n];
+            w[i] = 1.0;
+            w[j] = 1.0;
+            let pose = a.evaluate(&w);
+            more.shapes.push(helmcap::dataset::Shape {
+                name: format!("{}+{}", ds.shapes[i].name, ds.shapes[j].name),
+                positions: pose.positions,
+                jaw: Some(pose.jaw),
+            });
+        }
+        match run_dataset("actor + pairs", &more, &layout, &params, &t, smoothing) {
             Ok(r) => rows.extend(r),
             Err(e) => eprintln!("{e}"),
         }

@@ -94,6 +94,28 @@ fn tri_quality(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> (f64, f64) 
     (4.0 * 3f64.sqrt() * area / l2, (l2 / 3.0).sqrt())
 }
 
+/// The best-shaped `max_count` of `kept` (keys: negated quality), plus for every one of the
+/// `n` points its best [`PER_POINT`] tetrahedra, so a bundle at a dataset shape's own point
+/// can always be reproduced.
+fn cap(mut kept: Vec<(f32, [u16; 4])>, n: usize, max_count: usize) -> Vec<(f32, [u16; 4])> {
+    if kept.len() <= max_count {
+        return kept;
+    }
+    kept.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut cover = vec![0usize; n];
+    let mut out = Vec::with_capacity(max_count + n * PER_POINT);
+    for (k, t) in kept.into_iter().enumerate() {
+        let needed = t.1.iter().any(|&c| cover[c as usize] < PER_POINT);
+        if k < max_count || needed {
+            for &c in &t.1 {
+                cover[c as usize] += 1;
+            }
+            out.push(t);
+        }
+    }
+    out
+}
+
 /// Tetrahedralizes `points` (at most 65 536) with the pruning of the module docs.
 pub fn tetrahedralize(
     points: &[Point3<f64>],
@@ -104,60 +126,55 @@ pub fn tetrahedralize(
     let n = points.len().min(u16::MAX as usize + 1);
     let mut stats = TetStats::default();
     let max_e2 = max_edge_mm * max_edge_mm;
-    let near: Vec<Vec<bool>> = (0..n)
-        .map(|i| {
-            (0..n)
-                .map(|j| (points[i] - points[j]).norm_squared() <= max_e2)
-                .collect()
-        })
+    // Squared edge lengths, and per triangle its normal (times twice its area), so each
+    // fourth point costs one dot product: V = |n · (p_l − p_i)| / 6.
+    let d2: Vec<f64> = (0..n * n)
+        .map(|ij| (points[ij / n] - points[ij % n]).norm_squared())
         .collect();
+    let near = |a: usize, b: usize| d2[a * n + b] <= max_e2;
     let mut kept: Vec<(f32, [u16; 4])> = Vec::new();
+    // Past the cap, the buffer is trimmed as it fills (memory stays bounded for large
+    // clouds): the global quality bar only rises, so an early trim drops none of the final
+    // best-shaped; the per-point reserve is drawn again at each trim.
+    let mut trimmed = 0u64;
     for i in 0..n {
         for j in i + 1..n {
             for k in j + 1..n {
+                let tri_near = near(i, j) && near(i, k) && near(j, k);
+                let nrm = (points[j] - points[i]).cross(&(points[k] - points[i]));
+                let s3 = d2[i * n + j] + d2[i * n + k] + d2[j * n + k];
                 for l in k + 1..n {
                     stats.combinations += 1;
-                    if !(near[i][j]
-                        && near[i][k]
-                        && near[i][l]
-                        && near[j][k]
-                        && near[j][l]
-                        && near[k][l])
-                    {
+                    if !(tri_near && near(i, l) && near(j, l) && near(k, l)) {
                         stats.too_large += 1;
                         continue;
                     }
-                    let p = [points[i], points[j], points[k], points[l]];
-                    let (q, _) = tet_quality(&p);
+                    let v6 = nrm.dot(&(points[l] - points[i])).abs();
+                    let l2 = (s3 + d2[i * n + l] + d2[j * n + l] + d2[k * n + l]) / 6.0;
+                    // 6√2·V / l_rms³ with V = v6 / 6.
+                    let q = if l2 > 0.0 {
+                        std::f64::consts::SQRT_2 * v6 / (l2 * l2.sqrt())
+                    } else {
+                        0.0
+                    };
                     if !(q >= min_quality && q > 0.0) {
                         stats.too_thin += 1;
                         continue;
                     }
                     kept.push((-q as f32, [i as u16, j as u16, k as u16, l as u16]));
+                    if kept.len() >= 4 * max_count + n * PER_POINT + 1024 {
+                        let before = kept.len();
+                        kept = cap(kept, n, max_count);
+                        trimmed += (before - kept.len()) as u64;
+                    }
                 }
             }
         }
     }
     if !kept.is_empty() {
-        if kept.len() > max_count {
-            // Best-shaped first; then every point keeps its best few tetrahedra even past
-            // the cap, so a bundle at a dataset shape's own point can always be reproduced.
-            kept.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            let mut cover = vec![0usize; n];
-            let mut out = Vec::with_capacity(max_count + n * PER_POINT);
-            let total = kept.len();
-            for (k, t) in kept.into_iter().enumerate() {
-                let needed = t.1.iter().any(|&c| cover[c as usize] < PER_POINT);
-                if k < max_count || needed {
-                    for &c in &t.1 {
-                        cover[c as usize] += 1;
-                    }
-                    out.push(t);
-                }
-            }
-            stats.capped = (total - out.len()) as u64;
-            kept = out;
-        }
+        let before = kept.len();
+        kept = cap(kept, n, max_count);
+        stats.capped = trimmed + (before - kept.len()) as u64;
         kept.sort_by_key(|a| a.1);
         stats.kept = kept.len() as u64;
         return (
@@ -173,7 +190,7 @@ pub fn tetrahedralize(
     for i in 0..n {
         for j in i + 1..n {
             for k in j + 1..n {
-                if near[i][j] && near[i][k] && near[j][k] {
+                if near(i, j) && near(i, k) && near(j, k) {
                     let (q, _) = tri_quality(&points[i], &points[j], &points[k]);
                     if q >= min_quality && q > 0.0 {
                         tris.push([i as u16, j as u16, k as u16, i as u16]);
@@ -195,7 +212,7 @@ pub fn tetrahedralize(
     let mut segs = Vec::new();
     for i in 0..n {
         for j in i + 1..n {
-            if near[i][j] && (points[i] - points[j]).norm() > 0.0 {
+            if near(i, j) && (points[i] - points[j]).norm() > 0.0 {
                 segs.push([i as u16, j as u16, i as u16, i as u16]);
             }
         }

@@ -125,12 +125,38 @@ pub fn linear_face(neutral: &[Point3<f64>], shapes: &[Shape], w: &[f64]) -> Vec<
     out
 }
 
+/// The `count` pairs of shapes whose displacement fields overlap most (absolute cosine over
+/// the face vertices): the combinations a capture session would add.
+pub fn overlapping_pairs(base: &Dataset, count: usize) -> Vec<(usize, usize)> {
+    let x0 = &base.neutral.positions;
+    let face: Vec<usize> = base.face_vertex_indices().collect();
+    let d: Vec<Vec<Vector3<f64>>> = base
+        .shapes
+        .iter()
+        .map(|s| face.iter().map(|&v| s.positions[v] - x0[v]).collect())
+        .collect();
+    let norm: Vec<f64> = d
+        .iter()
+        .map(|x| x.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt())
+        .collect();
+    let mut pairs = Vec::new();
+    for i in 0..d.len() {
+        for j in i + 1..d.len() {
+            let dot: f64 = d[i].iter().zip(&d[j]).map(|(a, b)| a.dot(b)).sum();
+            pairs.push((dot.abs() / (norm[i] * norm[j]).max(1e-12), i, j));
+        }
+    }
+    pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
+    pairs
+        .into_iter()
+        .take(count)
+        .map(|(_, i, j)| (i, j))
+        .collect()
+}
+
 /// ICT dataset variants of the benchmark, from the 53-expression dataset.
 pub fn ict_variants(base: &Dataset) -> Vec<(String, Dataset)> {
     let x0 = &base.neutral.positions;
-    let disp = |s: &Shape| -> Vec<Vector3<f64>> {
-        s.positions.iter().zip(x0).map(|(p, x)| p - x).collect()
-    };
     let make = |name: &str, w: &[(usize, f64)]| -> Shape {
         let mut pos = x0.clone();
         for &(i, wi) in w {
@@ -156,31 +182,9 @@ pub fn ict_variants(base: &Dataset) -> Vec<(String, Dataset)> {
         .enumerate()
         .map(|(i, s)| make(&format!("{}_half", s.name), &[(i, 0.5)]))
         .collect();
-    // Pairs whose displacement fields overlap most (cosine over the face vertices).
-    let d: Vec<Vec<Vector3<f64>>> = base.shapes.iter().map(disp).collect();
-    let face: Vec<usize> = base.face_vertex_indices().collect();
-    let norm: Vec<f64> = d
-        .iter()
-        .map(|x| {
-            face.iter()
-                .map(|&v| x[v].norm_squared())
-                .sum::<f64>()
-                .sqrt()
-        })
-        .collect();
-    let mut pairs = Vec::new();
-    for i in 0..d.len() {
-        for j in i + 1..d.len() {
-            let dot: f64 = face.iter().map(|&v| d[i][v].dot(&d[j][v])).sum();
-            let cos = dot.abs() / (norm[i] * norm[j]).max(1e-12);
-            pairs.push((cos, i, j));
-        }
-    }
-    pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let pair_shapes: Vec<Shape> = pairs
-        .iter()
-        .take(80)
-        .map(|&(_, i, j)| {
+    let pair_shapes: Vec<Shape> = overlapping_pairs(base, 80)
+        .into_iter()
+        .map(|(i, j)| {
             make(
                 &format!("{}+{}", base.shapes[i].name, base.shapes[j].name),
                 &[(i, 1.0), (j, 1.0)],
