@@ -93,24 +93,21 @@ impl TripleTable {
     /// as soon as one is below `slack` (the query is outside).
     #[inline]
     pub fn inside(&self, faces: &[u32; 4], inv_volume: f64, slack: f64) -> Option<[f64; 4]> {
+        // Branch-free: the four look-ups, then one test (most tetrahedra fail it, and an
+        // early exit per coordinate mispredicts often).
         let v = &self.values;
-        let w0 = v[faces[0] as usize] * inv_volume;
-        if w0 < slack {
-            return None;
-        }
-        let w1 = -v[faces[1] as usize] * inv_volume;
-        if w1 < slack {
-            return None;
-        }
-        let w2 = v[faces[2] as usize] * inv_volume;
-        if w2 < slack {
-            return None;
-        }
-        let w3 = -v[faces[3] as usize] * inv_volume;
-        if w3 < slack {
-            return None;
-        }
-        Some([w0, w1, w2, w3])
+        let t0 = v.get(faces[0] as usize).copied().unwrap_or(f64::NAN);
+        let t1 = v.get(faces[1] as usize).copied().unwrap_or(f64::NAN);
+        let t2 = v.get(faces[2] as usize).copied().unwrap_or(f64::NAN);
+        let t3 = v.get(faces[3] as usize).copied().unwrap_or(f64::NAN);
+        let w = [
+            t0 * inv_volume,
+            -t1 * inv_volume,
+            t2 * inv_volume,
+            -t3 * inv_volume,
+        ];
+        let lo = w[0].min(w[1]).min(w[2].min(w[3]));
+        (lo >= slack).then_some(w)
     }
 
     /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`

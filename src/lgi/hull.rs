@@ -57,14 +57,15 @@ pub fn hull_faces(points: &[Point3<f64>]) -> Vec<[u16; 3]> {
     faces
 }
 
-/// Closest point to `x` on the hull triangles `faces` of `points`.
+/// Closest point to `x` on the hull triangles `faces` of `points`, and the triangle it
+/// lies on.
 pub fn closest_on_hull(
     points: &[Point3<f64>],
     faces: &[[u16; 3]],
     x: &Point3<f64>,
-) -> Option<Point3<f64>> {
-    let mut best: Option<(f64, Point3<f64>)> = None;
-    for f in faces {
+) -> Option<(Point3<f64>, usize)> {
+    let mut best: Option<(f64, Point3<f64>, usize)> = None;
+    for (fi, f) in faces.iter().enumerate() {
         let (a, b, c) = (
             &points[f[0] as usize],
             &points[f[1] as usize],
@@ -73,11 +74,11 @@ pub fn closest_on_hull(
         let w = closest_on_triangle(a, b, c, x);
         let y = combine(&[*a, *b, *c], &[w[0], w[1], w[2], 0.0]);
         let d = (y - x).norm_squared();
-        if best.is_none_or(|(bd, _)| d < bd) {
-            best = Some((d, y));
+        if best.is_none_or(|(bd, _, _)| d < bd) {
+            best = Some((d, y, fi));
         }
     }
-    best.map(|b| b.1)
+    best.map(|b| (b.1, b.2))
 }
 
 #[cfg(test)]
@@ -99,7 +100,7 @@ mod tests {
         assert!(f.iter().all(|t| !t.contains(&8)));
         // 6 square facets, each of 4 coplanar points: 4 triangles each.
         assert_eq!(f.len(), 24);
-        let y = closest_on_hull(&pts, &f, &Point3::new(2.0, 0.5, 0.25)).unwrap();
+        let (y, _) = closest_on_hull(&pts, &f, &Point3::new(2.0, 0.5, 0.25)).unwrap();
         assert!((y - Point3::new(1.0, 0.5, 0.25)).norm() < 1e-12);
         assert!(hull_faces(&pts[..3]).is_empty());
     }

@@ -46,6 +46,8 @@ pub struct MarkerIndex {
     pub grid: Option<TetGrid>,
     /// Convex hull triangles of the points (empty below dimension 3).
     pub hull: Vec<[u16; 3]>,
+    /// For each hull triangle, the tetrahedra having it as a face.
+    pub hull_tets: Vec<Vec<u32>>,
     /// Neighbouring markers (Delaunay neighbours in UV space).
     pub neighbors: Vec<u32>,
     /// `variants × neighbors` positions of each neighbour's vertex in each variant's shape.
@@ -309,13 +311,33 @@ impl LgiIndex {
                 } else {
                     Vec::new()
                 };
-                let triple_inv_area2 = if simplices.dim == 3 {
-                    super::barycentric::triple_inv_area2(&cloud.points)
+                let hull = if simplices.dim == 3 {
+                    super::hull::hull_faces(&cloud.points)
                 } else {
                     Vec::new()
                 };
-                let hull = if simplices.dim == 3 {
-                    super::hull::hull_faces(&cloud.points)
+                let hull_tets: Vec<Vec<u32>> = {
+                    let mut of: std::collections::HashMap<u32, usize> = Default::default();
+                    for (h, f) in hull.iter().enumerate() {
+                        let idx = super::barycentric::triple_index(
+                            f[0] as usize,
+                            f[1] as usize,
+                            f[2] as usize,
+                        ) as u32;
+                        of.insert(idx, h);
+                    }
+                    let mut lists = vec![Vec::new(); hull.len()];
+                    for (t, fs) in faces.iter().enumerate() {
+                        for f in fs {
+                            if let Some(&h) = of.get(f) {
+                                lists[h].push(t as u32);
+                            }
+                        }
+                    }
+                    lists
+                };
+                let triple_inv_area2 = if simplices.dim == 3 {
+                    super::barycentric::triple_inv_area2(&cloud.points)
                 } else {
                     Vec::new()
                 };
@@ -336,6 +358,7 @@ impl LgiIndex {
                         triple_inv_area2,
                         used_triples,
                         inv_volume,
+                        hull_tets,
                         hull,
                         grid,
                         neighbors,

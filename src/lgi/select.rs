@@ -26,6 +26,8 @@ use super::index::MarkerIndex;
 const TIE_BREAK: f64 = 1e-6;
 /// Smallest barycentric weight still counted as inside in `f64`.
 const INSIDE_SLACK: f64 = -1e-9;
+/// Containment slack for a point on the hull (it lies on a face: one weight is ~0).
+const HULL_SLACK: f64 = -1e-7;
 /// Projections this close to the closest one tie, and the neighbour criterion decides, mm.
 const PROJECTION_TIE_MM: f64 = 1e-6;
 
@@ -221,16 +223,20 @@ pub fn choose(
         if best.is_none() {
             // 2. Outside: project onto the cloud's convex hull (the union of all
             //    four-point tetrahedra) and choose among the tetrahedra at that point.
-            if let Some(q) = super::hull::closest_on_hull(&mi.points, &mi.hull, x) {
-                scan(
-                    &mut best,
-                    &mut table,
-                    &mut hits,
-                    &q,
-                    false,
-                    (q - x).norm_squared(),
-                    0.0,
-                );
+            if let Some((q, h)) = super::hull::closest_on_hull(&mi.points, &mi.hull, x) {
+                let d2 = (q - x).norm_squared();
+                // First the tetrahedra on that hull triangle, then (pruned there) any.
+                table.fill_used(&mi.points, &q, &mi.used_triples);
+                for &t in &mi.hull_tets[h] {
+                    let t = t as usize;
+                    if let Some(mut w) = table.inside(&mi.faces[t], mi.inv_volume[t], HULL_SLACK) {
+                        clamp_convex(&mut w);
+                        consider(&mut best, mi.simplices.corners[t], w, false, d2);
+                    }
+                }
+                if best.is_none() {
+                    scan(&mut best, &mut table, &mut hits, &q, false, d2, 0.0);
+                }
             }
         }
         scratch.table = table;
