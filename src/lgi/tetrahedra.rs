@@ -98,13 +98,24 @@ fn tri_quality(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> (f64, f64) 
 /// `n` points its best [`PER_POINT`] tetrahedra, so a bundle at a dataset shape's own point
 /// can always be reproduced.
 fn cap(mut kept: Vec<(f32, [u16; 4])>, n: usize, max_count: usize) -> Vec<(f32, [u16; 4])> {
+    cap_with_bar(&mut kept, n, max_count).0
+}
+
+/// [`cap`], also returning the key of the last of the best-shaped (the bar a later
+/// tetrahedron must beat) and which points have their full reserve.
+fn cap_with_bar(
+    kept: &mut Vec<(f32, [u16; 4])>,
+    n: usize,
+    max_count: usize,
+) -> (Vec<(f32, [u16; 4])>, f32, Vec<bool>) {
     if kept.len() <= max_count {
-        return kept;
+        return (std::mem::take(kept), f32::INFINITY, vec![false; n]);
     }
     kept.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let bar = kept[max_count - 1].0;
     let mut cover = vec![0usize; n];
     let mut out = Vec::with_capacity(max_count + n * PER_POINT);
-    for (k, t) in kept.into_iter().enumerate() {
+    for (k, t) in std::mem::take(kept).into_iter().enumerate() {
         let needed = t.1.iter().any(|&c| cover[c as usize] < PER_POINT);
         if k < max_count || needed {
             for &c in &t.1 {
@@ -113,7 +124,8 @@ fn cap(mut kept: Vec<(f32, [u16; 4])>, n: usize, max_count: usize) -> Vec<(f32, 
             out.push(t);
         }
     }
-    out
+    let full = cover.iter().map(|&c| c >= PER_POINT).collect();
+    (out, bar, full)
 }
 
 /// Tetrahedralizes `points` (at most 65 536) with the pruning of the module docs.
@@ -137,6 +149,8 @@ pub fn tetrahedralize(
     // clouds): the global quality bar only rises, so an early trim drops none of the final
     // best-shaped; the per-point reserve is drawn again at each trim.
     let mut trimmed = 0u64;
+    let mut bar = f32::INFINITY;
+    let mut full = vec![false; n];
     for i in 0..n {
         for j in i + 1..n {
             for k in j + 1..n {
@@ -161,10 +175,20 @@ pub fn tetrahedralize(
                         stats.too_thin += 1;
                         continue;
                     }
-                    kept.push((-q as f32, [i as u16, j as u16, k as u16, l as u16]));
+                    let key = -q as f32;
+                    if key > bar && full[i] && full[j] && full[k] && full[l] {
+                        // Worse than the best-shaped kept so far, and its points have
+                        // their reserve (approximately: a later reserve may be worse).
+                        trimmed += 1;
+                        continue;
+                    }
+                    kept.push((key, [i as u16, j as u16, k as u16, l as u16]));
                     if kept.len() >= 4 * max_count + n * PER_POINT + 1024 {
                         let before = kept.len();
-                        kept = cap(kept, n, max_count);
+                        let (out, b, f) = cap_with_bar(&mut kept, n, max_count);
+                        kept = out;
+                        bar = b;
+                        full = f;
                         trimmed += (before - kept.len()) as u64;
                     }
                 }
