@@ -59,6 +59,9 @@ impl TetStats {
     }
 }
 
+/// A tetrahedron with its sort key (negated quality: lower is better).
+type Keyed = (f32, [u16; 4]);
+
 /// Tetrahedra each point keeps past the cap.
 const PER_POINT: usize = 8;
 
@@ -97,17 +100,13 @@ fn tri_quality(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> (f64, f64) 
 /// The best-shaped `max_count` of `kept` (keys: negated quality), plus for every one of the
 /// `n` points its best [`PER_POINT`] tetrahedra, so a bundle at a dataset shape's own point
 /// can always be reproduced.
-fn cap(mut kept: Vec<(f32, [u16; 4])>, n: usize, max_count: usize) -> Vec<(f32, [u16; 4])> {
+fn cap(mut kept: Vec<Keyed>, n: usize, max_count: usize) -> Vec<Keyed> {
     cap_with_bar(&mut kept, n, max_count).0
 }
 
 /// [`cap`], also returning the key of the last of the best-shaped (the bar a later
 /// tetrahedron must beat) and which points have their full reserve.
-fn cap_with_bar(
-    kept: &mut Vec<(f32, [u16; 4])>,
-    n: usize,
-    max_count: usize,
-) -> (Vec<(f32, [u16; 4])>, f32, Vec<bool>) {
+fn cap_with_bar(kept: &mut Vec<Keyed>, n: usize, max_count: usize) -> (Vec<Keyed>, f32, Vec<bool>) {
     if kept.len() <= max_count {
         return (std::mem::take(kept), f32::INFINITY, vec![false; n]);
     }
