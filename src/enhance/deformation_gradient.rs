@@ -93,7 +93,12 @@ pub type PolarCode = [f64; POLAR_CODE_LEN];
 /// Encodes `f` as a [`PolarCode`]; `None` when `f` is not finite.
 pub fn encode_polar(f: &Matrix3<f64>) -> Option<PolarCode> {
     let (r, s) = polar_decomposition(f)?;
-    let w = r.scaled_axis();
+    // Through the quaternion (Shepperd's method): robust where the angle from the trace
+    // would take acos of a value rounded past ±1.
+    let w = nalgebra::UnitQuaternion::from_rotation_matrix(&r).scaled_axis();
+    if !w.iter().all(|x| x.is_finite()) {
+        return None;
+    }
     Some([
         w.x,
         w.y,

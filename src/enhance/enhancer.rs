@@ -38,6 +38,10 @@ pub struct EnhanceParams {
     /// Ridge added to the Gram matrices' diagonal, relative to their mean diagonal, to keep
     /// the QP strictly convex when database shapes coincide in a region. Default 1e-9.
     pub qp_ridge: f64,
+    /// Replace the reconstruction's low band by the input's: output `f(a) + (x − f(x))`
+    /// with x the reconstruction (one more back-substitution). Default true; see the
+    /// deviations on [`Enhancer`].
+    pub keep_input_low_band: bool,
 }
 
 impl Default for EnhanceParams {
@@ -50,6 +54,7 @@ impl Default for EnhanceParams {
             region_sigma_mm: 15.0,
             motion_quantile: 0.8,
             qp_ridge: 1e-9,
+            keep_input_low_band: true,
         }
     }
 }
@@ -115,9 +120,18 @@ pub struct Enhanced {
 ///   way as an input with the jaw open, which keeps the matching consistent.
 /// - The neutral d₀ is a database frame like the shapes, so a neutral input receives the
 ///   neutral's own skin detail.
-/// - The final placement is one Horn alignment of the reconstruction onto the low-passed
-///   input f(a) (face vertices), which composes the paper's two steps (align to the
-///   database, apply R_a⁻¹, T_a⁻¹) into one.
+/// - The final placement is one Horn alignment of the reconstruction onto the input a
+///   itself (face vertices), which composes the paper's two steps (align to the database,
+///   apply R_a⁻¹, T_a⁻¹) into one and uses the unfiltered input as the reference: the
+///   low-pass shrinks a curved face toward its centres of curvature, so aligning to f(a)
+///   would shift the result by that shrinkage (a few tenths of a millimetre).
+/// - The Poisson solve's translation and boundary targets ([`PoissonSolver::solve`]'s
+///   anchor) come from the aligned input a, not f(a), for the same reason.
+/// - By default ([`EnhanceParams::keep_input_low_band`]) the output's low band is reset to
+///   the input's, f(a) + (x − f(x)). Integrating blended gradients over the whole head lets
+///   small gradient mismatches add up to a smooth drift of the low frequencies; in
+///   production the low band is the animator's or the solver's intent and must not move,
+///   only details are to be added. Off, the output is the paper's reconstruction.
 /// - Details are stored in single precision (half the memory; 1e-7 relative is far below
 ///   the detail's own size).
 /// - Vertex colours (§5.5, optional in the issue) are not blended.
@@ -144,6 +158,7 @@ pub struct Enhancer {
     /// d^h codes, triangle-major: [(t · #frames + k) · 9 + c].
     details: Vec<f32>,
     qp_ridge: f64,
+    keep_input_low_band: bool,
 }
 
 impl std::fmt::Debug for Enhancer {
@@ -248,6 +263,7 @@ impl Enhancer {
             grams: Default::default(),
             details: Vec::new(),
             qp_ridge: params.qp_ridge,
+            keep_input_low_band: params.keep_input_low_band,
         };
         for (k, (_, positions)) in frames.iter().enumerate() {
             let low = partial.low_pass.apply(positions)?;
@@ -358,7 +374,7 @@ impl Enhancer {
         }
         // §5.1 frequency separation, §5.2 alignment and encoding.
         let low = self.low_pass.apply(positions)?;
-        let (aligned, _) = self.align_to_smooth_neutral(&low)?;
+        let (aligned, head_from_input) = self.align_to_smooth_neutral(&low)?;
         let low_grads = self.low_gradients(&aligned);
         let code = self.compressed_code(&low_grads);
         // §5.3 matching, Eq. (3) per region.
@@ -396,10 +412,20 @@ impl Enhancer {
             })
             .collect();
         // §5.5 reconstruction and rigid placement.
-        let rebuilt = self.poisson.solve(&gradients, &aligned)?;
-        let back = horn_alignment(&rebuilt, &low, &self.face_weights)?;
+        let input_aligned: Vec<Point3<f64>> =
+            positions.iter().map(|p| head_from_input * p).collect();
+        let rebuilt = self.poisson.solve(&gradients, &input_aligned)?;
+        let back = horn_alignment(&rebuilt, positions, &self.face_weights)?;
+        let mut out: Vec<Point3<f64>> = rebuilt.iter().map(|p| back * p).collect();
+        if self.keep_input_low_band {
+            // f(a) + (x − f(x)): the input's low band, the reconstruction's high band.
+            let out_low = self.low_pass.apply(&out)?;
+            for ((o, ol), il) in out.iter_mut().zip(&out_low).zip(&low) {
+                *o = il + (*o - ol);
+            }
+        }
         Ok(Enhanced {
-            positions: rebuilt.iter().map(|p| back * p).collect(),
+            positions: out,
             region_weights,
         })
     }
