@@ -4,6 +4,7 @@
 mod bench;
 mod dataset;
 mod demo;
+mod enhance;
 mod markers;
 
 use std::path::{Path, PathBuf};
@@ -33,6 +34,8 @@ enum Command {
     /// Marker layouts.
     #[command(subcommand)]
     Markers(markers::MarkersCommand),
+    /// Add the database's actor-specific details to a mesh sequence (Bermano et al. 2014).
+    Enhance(enhance::EnhanceArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -61,6 +64,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
+        Command::Enhance(a) => enhance::run(a),
         Command::Bench(c) => bench::run(c),
     }
 }
