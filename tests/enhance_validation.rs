@@ -145,3 +145,35 @@ fn a_database_shape_is_reproduced() {
     println!("database shape reproduced to {err:.5} mm RMS");
     assert!(err < 0.02, "{err}");
 }
+
+#[test]
+fn retiming_a_database_keyframe_pair_follows_the_sequence_timing() {
+    use helmcap::enhance::{Retimer, builtin_sequences};
+    let (actor, _, enhancer) = setup();
+    let n = 13;
+    let (sequences, names) = builtin_sequences(&actor, n);
+    let retimer = Retimer::new(&enhancer, &sequences).unwrap();
+    let s = names.iter().position(|&x| x == "browInnerUp").unwrap();
+    let seq = &sequences[s];
+    let out = retimer
+        .retime(&enhancer, &seq[0], &seq[n - 1], n, false)
+        .unwrap();
+    assert_eq!(out.sequence, s);
+    assert_eq!(out.frames.len(), n);
+    let mut worst = 0.0_f64;
+    for (k, &g) in out.fractions.iter().enumerate() {
+        let t = k as f64 / (n - 1) as f64;
+        let truth = 1.0 - (1.0 - t).powi(3);
+        worst = worst.max((g - truth).abs());
+    }
+    println!("retimed fractions vs the sequence's ease-out: worst {worst:.3}");
+    assert!(worst < 0.06, "{:?}", out.fractions);
+    // Linear interpolation would be off by up to 0.38.
+    // A half-way keyframe pair matches the first part of the motion; extending takes the
+    // timing of the whole motion, so the start is slower relative to the end keyframe.
+    let mid = retimer
+        .retime(&enhancer, &seq[0], &seq[n / 2], n, true)
+        .unwrap();
+    assert_eq!(mid.sequence, s);
+    assert!(mid.fractions.windows(2).all(|w| w[0] <= w[1] + 1e-12));
+}

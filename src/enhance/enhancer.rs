@@ -430,6 +430,27 @@ impl Enhancer {
         })
     }
 
+    /// The compressed shape-space vector ã of a frame (§5.2): low-pass, Horn alignment to
+    /// f(d₀), patch-averaged gradients, polar-encoded (9 · #patches values).
+    ///
+    /// # Errors
+    /// As [`Enhancer::enhance`].
+    pub fn shape_space_code(
+        &self,
+        positions: &[Point3<f64>],
+    ) -> Result<DVector<f64>, EnhanceError> {
+        if positions.len() != self.vertex_count {
+            return Err(EnhanceError::Shape {
+                what: "frame vertices",
+                expected: self.vertex_count,
+                got: positions.len(),
+            });
+        }
+        let low = self.low_pass.apply(positions)?;
+        let (aligned, _) = self.align_to_smooth_neutral(&low)?;
+        Ok(self.compressed_code(&self.low_gradients(&aligned)))
+    }
+
     /// Horn-aligns `positions` to f(d₀) over the face vertices (§5.2).
     fn align_to_smooth_neutral(
         &self,

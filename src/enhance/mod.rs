@@ -10,7 +10,8 @@
 //!
 //! Kernels, one file each: [`deformation_gradient`] (Sumner & Popović gradients, polar
 //! encoding), [`frequency`] (low-pass filter, Eq. 1), [`poisson`] (reconstruction),
-//! [`qp`] (convex weights, Eq. 2-3), [`regions`] (voluntary regions, patches).
+//! [`qp`] (convex weights, Eq. 2-3), [`regions`] (voluntary regions, patches),
+//! [`retime`] (sequence projection and retiming, §6).
 //!
 //! Depends on [`crate::mesh`], [`crate::dataset`] and [`crate::align`].
 
@@ -20,6 +21,7 @@ pub mod frequency;
 pub mod poisson;
 pub mod qp;
 pub mod regions;
+pub mod retime;
 
 pub use deformation_gradient::{
     PolarCode, decode_polar, deformation_gradients, encode_polar, polar_decomposition,
@@ -30,6 +32,10 @@ pub use frequency::{LowPass, LowPassParams};
 pub use poisson::{PoissonParams, PoissonSolver};
 pub use qp::convex_weights;
 pub use regions::{REGION_NAMES, RegionWeights, VoluntaryRegions, seed_and_grow_patches};
+pub use retime::{
+    Retimed, Retimer, SequenceProjection, builtin_sequences, project_on_segment,
+    sequence_projection,
+};
 
 use crate::align::HornError;
 use crate::mesh::MeshError;
