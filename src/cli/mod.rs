@@ -6,6 +6,7 @@ mod dataset;
 mod demo;
 mod enhance;
 mod markers;
+mod retime;
 
 use std::path::{Path, PathBuf};
 
@@ -36,6 +37,8 @@ enum Command {
     Markers(markers::MarkersCommand),
     /// Add the database's actor-specific details to a mesh sequence (Bermano et al. 2014).
     Enhance(enhance::EnhanceArgs),
+    /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
+    Retime(retime::RetimeArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -65,6 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
+        Command::Retime(a) => retime::run(a),
         Command::Bench(c) => bench::run(c),
     }
 }

@@ -33,7 +33,7 @@ pub use poisson::{PoissonParams, PoissonSolver};
 pub use qp::convex_weights;
 pub use regions::{REGION_NAMES, RegionWeights, VoluntaryRegions, seed_and_grow_patches};
 pub use retime::{
-    Retimed, Retimer, SequenceProjection, builtin_sequences, project_on_segment,
+    Retimed, Retimer, Sequence, SequenceProjection, builtin_sequences, project_on_segment,
     sequence_projection,
 };
 
