@@ -4,7 +4,11 @@
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
+//! - [`align`]: rigid alignment (Horn's method).
+//! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 
+pub mod align;
 pub mod atomic_file;
 pub mod dataset;
+pub mod enhance;
 pub mod mesh;

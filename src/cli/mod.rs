@@ -4,7 +4,9 @@
 mod bench;
 mod dataset;
 mod demo;
+mod enhance;
 mod markers;
+mod retime;
 
 use std::path::{Path, PathBuf};
 
@@ -33,6 +35,10 @@ enum Command {
     /// Marker layouts.
     #[command(subcommand)]
     Markers(markers::MarkersCommand),
+    /// Add the database's actor-specific details to a mesh sequence (Bermano et al. 2014).
+    Enhance(enhance::EnhanceArgs),
+    /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
+    Retime(retime::RetimeArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -61,6 +67,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
+        Command::Enhance(a) => enhance::run(a),
+        Command::Retime(a) => retime::run(a),
         Command::Bench(c) => bench::run(c),
     }
 }
