@@ -4,7 +4,13 @@
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
+//! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
+//! - [`capture`]: frame sources: replay of recorded sessions.
+//! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 
 pub mod atomic_file;
+pub mod camera;
+pub mod capture;
 pub mod dataset;
 pub mod mesh;
+pub mod synth;

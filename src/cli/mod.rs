@@ -5,6 +5,7 @@ mod bench;
 mod dataset;
 mod demo;
 mod markers;
+mod synth;
 
 use std::path::{Path, PathBuf};
 
@@ -36,6 +37,8 @@ enum Command {
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Render a synthetic helmet recording with ground truth, or calibration target images.
+    Synth(synth::SynthArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -62,6 +65,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Synth(a) => synth::run(a),
     }
 }
 
