@@ -6,6 +6,8 @@
 //!   built-in synthetic actor.
 //! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
 //! - [`capture`]: frame sources: replay of recorded sessions.
+//! - [`track`]: marker detection in images.
+//! - [`stereo`]: triangulation of stereo observations into bundles.
 //! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 
 pub mod atomic_file;
@@ -13,4 +15,6 @@ pub mod camera;
 pub mod capture;
 pub mod dataset;
 pub mod mesh;
+pub mod stereo;
 pub mod synth;
+pub mod track;
