@@ -251,3 +251,59 @@ fn bad_input_is_a_clear_error() {
         .to_string();
     assert!(e.contains("cam0") && e.contains("missing"), "{e}");
 }
+
+/// Throughput of detection (both images, in parallel) + stereo pairing and triangulation
+/// at 1280×1024, median of 5 passes over a 60-frame session; prints the figures. Heavy:
+/// run in release with `--ignored --nocapture`.
+#[test]
+#[ignore]
+fn capture_throughput() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = dir.path();
+    let start = std::time::Instant::now();
+    synth(s, 60, &["--slip-mm", "1.5", "--slip-deg", "1"]);
+    eprintln!(
+        "render: 60 stereo frames in {:.2} s",
+        start.elapsed().as_secs_f64()
+    );
+    let replay = Replay::open(s, ReplayParams::default()).unwrap();
+    let rig = replay.rig().unwrap().clone();
+    let frames: Vec<_> = replay.map(Result::unwrap).collect();
+    let params = DetectParams::default();
+    let mut rates = Vec::new();
+    let (mut detect_secs, mut pair_secs) = (Vec::new(), Vec::new());
+    for _ in 0..5 {
+        let t = std::time::Instant::now();
+        let mut bundles = 0;
+        let (mut td, mut tp) = (0.0, 0.0);
+        for f in &frames {
+            let t0 = std::time::Instant::now();
+            let (a, b) = rayon::join(
+                || detect_markers(&f.images[0], &params),
+                || detect_markers(&f.images[1], &params),
+            );
+            let t1 = std::time::Instant::now();
+            let pa: Vec<_> = a.iter().map(|d| d.centre_px).collect();
+            let pb: Vec<_> = b.iter().map(|d| d.centre_px).collect();
+            bundles += pair_detections(&rig, &pa, &pb, &PairParams::default()).len();
+            td += (t1 - t0).as_secs_f64();
+            tp += t1.elapsed().as_secs_f64();
+        }
+        assert!(bundles > 0);
+        rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
+        detect_secs.push(td / frames.len() as f64);
+        pair_secs.push(tp / frames.len() as f64);
+    }
+    detect_secs.sort_by(f64::total_cmp);
+    pair_secs.sort_by(f64::total_cmp);
+    eprintln!(
+        "per stereo frame (median): detection {:.2} ms, pairing + triangulation {:.2} ms",
+        detect_secs[2] * 1e3,
+        pair_secs[2] * 1e3
+    );
+    rates.sort_by(f64::total_cmp);
+    eprintln!(
+        "detect + pair + triangulate: median {:.0} stereo frames/s (min {:.0}, max {:.0})",
+        rates[2], rates[0], rates[4]
+    );
+}

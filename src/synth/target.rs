@@ -341,4 +341,66 @@ mod tests {
             assert!((f64::from(v) - expect).abs() < 1.0, "{v} vs {expect}");
         }
     }
+
+    /// OpenCV's chessboard detector finds the rendered corners where the camera model
+    /// projects them: the target images are fit for calibration tests.
+    #[test]
+    fn opencv_finds_rendered_corners_to_subpixel_accuracy() {
+        use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
+        let rig = super::super::default_rig().unwrap();
+        let board = Chessboard::parse("chessboard:9x6:20").unwrap();
+        let params = TargetParams::default();
+        let mut rng = StdRng::seed_from_u64(2);
+        let pose = random_pose(&mut rng, &rig, &board, &params).unwrap();
+        let (w, h) = (rig.cam0.width_px as usize, rig.cam0.height_px as usize);
+        let mut img = render_board(&rig.cam0, &board, &pose);
+        raster::gaussian_blur(&mut img, w, h, params.blur_px);
+        let gray = to_gray8(&img, params.noise_dn, 5);
+        let mat = Mat::new_rows_cols_with_data(h as i32, w as i32, &gray).unwrap();
+        let mut corners = Vector::<Point2f>::new();
+        let found = opencv::calib3d::find_chessboard_corners(
+            &mat,
+            Size::new(9, 6),
+            &mut corners,
+            opencv::calib3d::CALIB_CB_ADAPTIVE_THRESH | opencv::calib3d::CALIB_CB_NORMALIZE_IMAGE,
+        )
+        .unwrap();
+        assert!(found);
+        let criteria = TermCriteria::new(
+            TermCriteria_Type::COUNT as i32 + TermCriteria_Type::EPS as i32,
+            50,
+            1e-4,
+        )
+        .unwrap();
+        opencv::imgproc::corner_sub_pix(
+            &mat,
+            &mut corners,
+            Size::new(5, 5),
+            Size::new(-1, -1),
+            criteria,
+        )
+        .unwrap();
+        let truth: Vec<nalgebra::Point2<f64>> = board
+            .corners()
+            .iter()
+            .map(|c| rig.cam0.project(&(pose * c).coords).unwrap())
+            .collect();
+        let found: Vec<nalgebra::Point2<f64>> = corners
+            .iter()
+            .map(|p| nalgebra::Point2::new(f64::from(p.x), f64::from(p.y)))
+            .collect();
+        assert_eq!(found.len(), truth.len());
+        // OpenCV may report the grid from either end.
+        let rms = |rev: bool| {
+            let sum: f64 = (0..truth.len())
+                .map(|i| {
+                    let j = if rev { truth.len() - 1 - i } else { i };
+                    (found[i] - truth[j]).norm_squared()
+                })
+                .sum();
+            (sum / truth.len() as f64).sqrt()
+        };
+        let rms = rms(false).min(rms(true));
+        assert!(rms < 0.1, "corner RMS {rms} px");
+    }
 }
