@@ -1,6 +1,7 @@
 //! Marker detection: painted dots on skin, found by local-contrast thresholding.
 //!
-//! 1. Local mean `μ(x)` over a `(2r+1)²` box (integral image), so uneven light cancels.
+//! 1. Local mean `μ(x)` over a `(2r+1)²` box (running column sums), so uneven light
+//!    cancels.
 //! 2. Candidate pixels: `μ(x) − I(x) ≥ c` for dark dots (`I(x) − μ(x) ≥ c` for bright).
 //! 3. 8-connected components of candidates, within the region of interest and mask.
 //! 4. Filters: area, roundness `√(λ_min/λ_max)` of the second moments, and contrast against
@@ -111,44 +112,56 @@ pub fn detect_markers(image: &GrayImage, params: &DetectParams) -> Vec<Detection
         return Vec::new();
     }
     let r = params.window_radius_px as usize;
-    // Integral image over the ROI grown by r (clamped), (rw+1) × (rh+1).
+    // Box sums over the ROI grown by r (clamped): column sums over the window's rows, kept
+    // incrementally from row to row, and a prefix sum of them along each row.
     let gx0 = x0.saturating_sub(r);
     let gy0 = y0.saturating_sub(r);
     let gx1 = (x1 + r).min(w);
     let gy1 = (y1 + r).min(h);
     let rw = gx1 - gx0;
-    let rh = gy1 - gy0;
-    let mut integral = vec![0u32; (rw + 1) * (rh + 1)];
-    for y in 0..rh {
-        let row = &image.data[(gy0 + y) * w + gx0..(gy0 + y) * w + gx1];
-        let mut acc = 0u32;
-        for (x, &v) in row.iter().enumerate() {
-            acc += u32::from(v);
-            integral[(y + 1) * (rw + 1) + x + 1] = integral[y * (rw + 1) + x + 1] + acc;
-        }
-    }
     let bw = x1 - x0;
     let bh = y1 - y0;
-    // Candidate mask over the ROI.
     let c = params.min_contrast_dn;
     let mut mask = vec![false; bw * bh];
+    let mut col = vec![0u32; rw];
+    let mut prefix = vec![0u32; rw + 1];
+    let (mut ya_prev, mut yb_prev) = (gy0, gy0);
     for y in y0..y1 {
-        let ya = y.saturating_sub(r).max(gy0) - gy0;
-        let yb = (y + r + 1).min(gy1) - gy0;
-        for x in x0..x1 {
+        let ya = y.saturating_sub(r).max(gy0);
+        let yb = (y + r + 1).min(gy1);
+        for yy in yb_prev..yb {
+            let row = &image.data[yy * w + gx0..yy * w + gx1];
+            col.iter_mut()
+                .zip(row)
+                .for_each(|(s, &v)| *s += u32::from(v));
+        }
+        for yy in ya_prev..ya {
+            let row = &image.data[yy * w + gx0..yy * w + gx1];
+            col.iter_mut()
+                .zip(row)
+                .for_each(|(s, &v)| *s -= u32::from(v));
+        }
+        (ya_prev, yb_prev) = (ya, yb);
+        let mut acc = 0u32;
+        for (p, &s) in prefix[1..].iter_mut().zip(&col) {
+            acc += s;
+            *p = acc;
+        }
+        let rows = (yb - ya) as u32;
+        let img_row = &image.data[y * w + x0..y * w + x1];
+        let mask_row = &mut mask[(y - y0) * bw..(y - y0 + 1) * bw];
+        for (k, (&v, m)) in img_row.iter().zip(mask_row.iter_mut()).enumerate() {
+            let x = x0 + k;
             let xa = x.saturating_sub(r).max(gx0) - gx0;
             let xb = (x + r + 1).min(gx1) - gx0;
-            let area = ((xb - xa) * (yb - ya)) as u32;
-            let sum = integral[yb * (rw + 1) + xb] + integral[ya * (rw + 1) + xa]
-                - integral[ya * (rw + 1) + xb]
-                - integral[yb * (rw + 1) + xa];
-            let v = u32::from(image.data[y * w + x]) * area;
-            let hit = if params.bright {
+            let area = (xb - xa) as u32 * rows;
+            let sum = prefix[xb] - prefix[xa];
+            let v = u32::from(v) * area;
+            *m = if params.bright {
                 v >= sum + c * area
             } else {
                 v + c * area <= sum
             };
-            mask[(y - y0) * bw + (x - x0)] = hit;
         }
     }
     // Connected components (8-connectivity) by flood fill.
