@@ -4,11 +4,21 @@
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
+//! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
+//! - [`capture`]: frame sources: replay of recorded sessions.
+//! - [`track`]: marker detection in images.
+//! - [`stereo`]: triangulation of stereo observations into bundles.
+//! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 //! - [`align`]: rigid alignment (Horn's method).
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 
 pub mod align;
 pub mod atomic_file;
+pub mod camera;
+pub mod capture;
 pub mod dataset;
 pub mod enhance;
 pub mod mesh;
+pub mod stereo;
+pub mod synth;
+pub mod track;

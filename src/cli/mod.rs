@@ -7,6 +7,7 @@ mod demo;
 mod enhance;
 mod markers;
 mod retime;
+mod synth;
 
 use std::path::{Path, PathBuf};
 
@@ -42,6 +43,8 @@ enum Command {
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Render a synthetic helmet recording with ground truth, or calibration target images.
+    Synth(synth::SynthArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -70,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Enhance(a) => enhance::run(a),
         Command::Retime(a) => retime::run(a),
         Command::Bench(c) => bench::run(c),
+        Command::Synth(a) => synth::run(a),
     }
 }
 
