@@ -8,11 +8,25 @@
 //! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
 //! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
 //! - [`solve`]: the solve stage (bundles to dense mesh by any method) and its benchmark.
+//! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
+//! - [`capture`]: frame sources: replay of recorded sessions.
+//! - [`track`]: marker detection in images.
+//! - [`stereo`]: triangulation of stereo observations into bundles.
+//! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
+//! - [`align`]: rigid alignment (Horn's method).
+//! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 
+pub mod align;
 pub mod atomic_file;
 pub mod baseline;
 pub mod bundles;
+pub mod camera;
+pub mod capture;
 pub mod dataset;
+pub mod enhance;
 pub mod lgi;
 pub mod mesh;
 pub mod solve;
+pub mod stereo;
+pub mod synth;
+pub mod track;

@@ -18,6 +18,8 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         runs: usize,
     },
+    /// Time detail enhancement: precomputation, memory and per-frame time.
+    Enhance(super::enhance::EnhanceBenchArgs),
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -59,6 +61,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             println!("  from mesh files   {:8.1} ms", cold * 1e3);
             println!("  from cache        {:8.1} ms", cached * 1e3);
         }
+        BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {

@@ -4,8 +4,11 @@
 mod bench;
 mod dataset;
 mod demo;
+mod enhance;
 mod markers;
+mod retime;
 mod solve;
+mod synth;
 
 use std::path::{Path, PathBuf};
 
@@ -36,9 +39,15 @@ enum Command {
     Markers(markers::MarkersCommand),
     /// Reconstruct the dense face of every frame of a bundles CSV.
     Solve(solve::SolveArgs),
+    /// Add the database's actor-specific details to a mesh sequence (Bermano et al. 2014).
+    Enhance(enhance::EnhanceArgs),
+    /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
+    Retime(retime::RetimeArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Render a synthetic helmet recording with ground truth, or calibration target images.
+    Synth(synth::SynthArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -65,7 +74,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Solve(a) => solve::run(a),
+        Command::Enhance(a) => enhance::run(a),
+        Command::Retime(a) => retime::run(a),
         Command::Bench(c) => bench::run(c),
+        Command::Synth(a) => synth::run(a),
     }
 }
 
