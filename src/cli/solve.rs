@@ -59,6 +59,10 @@ pub struct SolveArgs {
     /// LGI: temporal smoothing of the barycentric weights, frames on each side (0: off).
     #[arg(long, default_value_t = 0)]
     smooth: usize,
+    /// LGI: frames after each frame in the smoothing window, i.e. the output lag of a live
+    /// run (default: the same as --smooth, a centred window).
+    #[arg(long, value_name = "FRAMES")]
+    lag: Option<usize>,
     /// LGI: settings for noisy bundles (tetrahedra within 0.5 mm compete; the surface is
     /// not forced through each bundle).
     #[arg(long)]
@@ -120,8 +124,12 @@ pub fn run(args: SolveArgs) -> anyhow::Result<()> {
         lgi.bundle_tolerance_mm = n.bundle_tolerance_mm;
         lgi.snap_to_bundles = n.snap_to_bundles;
     }
-    if args.smooth > 0 {
-        lgi.smoothing = TemporalParams::centered(args.smooth);
+    if args.smooth > 0 || args.lag.is_some_and(|l| l > 0) {
+        lgi.smoothing = TemporalParams {
+            past_frames: args.smooth,
+            future_frames: args.lag.unwrap_or(args.smooth),
+            ..TemporalParams::default()
+        };
     }
     lgi.validate()?;
     let params = SolveParams {
