@@ -4,6 +4,10 @@
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
+//! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
+//! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
+//! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
+//! - [`solve`]: the solve stage (bundles to dense mesh by any method) and its benchmark.
 //! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
 //! - [`capture`]: frame sources: replay of recorded sessions.
 //! - [`track`]: marker detection in images.
@@ -14,11 +18,15 @@
 
 pub mod align;
 pub mod atomic_file;
+pub mod baseline;
+pub mod bundles;
 pub mod camera;
 pub mod capture;
 pub mod dataset;
 pub mod enhance;
+pub mod lgi;
 pub mod mesh;
+pub mod solve;
 pub mod stereo;
 pub mod synth;
 pub mod track;

@@ -7,6 +7,7 @@ mod demo;
 mod enhance;
 mod markers;
 mod retime;
+mod solve;
 mod synth;
 
 use std::path::{Path, PathBuf};
@@ -40,6 +41,8 @@ enum Command {
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Reconstruct the dense face of every frame of a bundles CSV.
+    Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -72,6 +75,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
         Command::Retime(a) => retime::run(a),
+        Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
     }

@@ -1,0 +1,427 @@
+//! Barycentric coordinates in tetrahedra and closest points on simplices (Cong et al. 2019
+//! §4: "we compute the convex barycentric weights (w_i, w_j, w_k, w_l) of the bundle
+//! position"; outside every tetrahedron, "the barycentric coordinates for the closest point
+//! on the associated tetrahedralized volume").
+
+use nalgebra::{Matrix3, Point3, Vector3};
+
+/// Barycentric coordinates of `x` in the tetrahedron `p`: `w` with `Σ w = 1` and
+/// `Σ w_n p_n = x`. `None` when the tetrahedron is degenerate (zero volume).
+pub fn tet_barycentric(p: &[Point3<f64>; 4], x: &Point3<f64>) -> Option<[f64; 4]> {
+    let m = Matrix3::from_columns(&[p[1] - p[0], p[2] - p[0], p[3] - p[0]]);
+    let inv = m.try_inverse()?;
+    let w = inv * (x - p[0]);
+    Some([1.0 - w.x - w.y - w.z, w.x, w.y, w.z])
+}
+
+/// Signed volume (times 6) of the tetrahedron `a b c d`: `det[b − a, c − a, d − a]`.
+pub fn orient(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>, d: &Point3<f64>) -> f64 {
+    (b - a).dot(&(c - a).cross(&(d - a)))
+}
+
+/// Index of the triple `i < j < k` in the combinatorial order of [`TripleTable`].
+#[inline]
+pub fn triple_index(i: usize, j: usize, k: usize) -> usize {
+    k * (k - 1) * (k - 2) / 6 + j * (j - 1) / 2 + i
+}
+
+/// Orientations `T(i, j, k) = det[p_i − x, p_j − x, p_k − x]` of a query point `x` against
+/// every triple of a point cloud, so that the barycentric coordinates of `x` in any
+/// tetrahedron `a < b < c < d` of the cloud are four look-ups:
+///
+/// `w = (T(b,c,d), −T(a,c,d), T(a,b,d), −T(a,b,c)) / det[b − a, c − a, d − a]`.
+///
+/// For the all-combinations tetrahedralization of §4.1 this is far cheaper than a
+/// per-tetrahedron solve: `C(n, 3)` determinants per frame serve `C(n, 4)` tetrahedra.
+#[derive(Debug, Default, Clone)]
+pub struct TripleTable {
+    values: Vec<f64>,
+    rel: Vec<nalgebra::Vector3<f64>>,
+}
+
+impl TripleTable {
+    /// Fills the table for `points` and query `x`.
+    pub fn fill(&mut self, points: &[Point3<f64>], x: &Point3<f64>) {
+        let n = points.len();
+        self.rel.clear();
+        self.rel.extend(points.iter().map(|p| p - x));
+        self.values.clear();
+        self.values
+            .resize(n * n.saturating_sub(1) * n.saturating_sub(2) / 6, 0.0);
+        for k in 2..n {
+            for j in 1..k {
+                let c = self.rel[j].cross(&self.rel[k]);
+                let base = triple_index(0, j, k);
+                for i in 0..j {
+                    self.values[base + i] = self.rel[i].dot(&c);
+                }
+            }
+        }
+    }
+
+    /// Fills only the `used` triples (`(index, [i, j, k])`, see [`used_triples`]) for
+    /// `points` and query `x`; the other entries keep stale values and must not be read.
+    pub fn fill_used(&mut self, points: &[Point3<f64>], x: &Point3<f64>, used: &[(u32, [u16; 3])]) {
+        let n = points.len();
+        self.rel.clear();
+        self.rel.extend(points.iter().map(|p| p - x));
+        let size = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
+        if self.values.len() != size {
+            self.values.clear();
+            self.values.resize(size, 0.0);
+        }
+        for &(idx, [i, j, k]) in used {
+            let (i, j, k) = (i as usize, j as usize, k as usize);
+            self.values[idx as usize] = self.rel[i].dot(&self.rel[j].cross(&self.rel[k]));
+        }
+    }
+
+    /// The four face triples of tetrahedron `t` (corners ascending) in the order the
+    /// barycentric coordinates need them (see [`TripleTable::inside`]).
+    pub fn faces(t: &[u16; 4]) -> [u32; 4] {
+        let (a, b, c, d) = (t[0] as usize, t[1] as usize, t[2] as usize, t[3] as usize);
+        [
+            triple_index(b, c, d) as u32,
+            triple_index(a, c, d) as u32,
+            triple_index(a, b, d) as u32,
+            triple_index(a, b, c) as u32,
+        ]
+    }
+
+    /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
+    /// ([`TripleTable::faces`]) and `inv_volume = 1 / det[b − a, c − a, d − a]`, or `None`
+    /// as soon as one is below `slack` (the query is outside).
+    #[inline]
+    pub fn inside(&self, faces: &[u32; 4], inv_volume: f64, slack: f64) -> Option<[f64; 4]> {
+        // Branch-free: the four look-ups, then one test (most tetrahedra fail it, and an
+        // early exit per coordinate mispredicts often).
+        let v = &self.values;
+        let t0 = v.get(faces[0] as usize).copied().unwrap_or(f64::NAN);
+        let t1 = v.get(faces[1] as usize).copied().unwrap_or(f64::NAN);
+        let t2 = v.get(faces[2] as usize).copied().unwrap_or(f64::NAN);
+        let t3 = v.get(faces[3] as usize).copied().unwrap_or(f64::NAN);
+        let w = [
+            t0 * inv_volume,
+            -t1 * inv_volume,
+            t2 * inv_volume,
+            -t3 * inv_volume,
+        ];
+        let lo = w[0].min(w[1]).min(w[2].min(w[3]));
+        (lo >= slack).then_some(w)
+    }
+
+    /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
+    /// and a lower bound of its distance to the tetrahedron (the largest distance outside
+    /// one of its face planes; 0 inside), or `None` when that bound exceeds `tol_mm`.
+    /// `inv_area2[f]` is `1 / (2 · area)` of triple `f`'s triangle.
+    #[inline]
+    pub fn near(
+        &self,
+        faces: &[u32; 4],
+        inv_volume: f64,
+        inv_area2: &[f64],
+        tol_mm: f64,
+    ) -> Option<([f64; 4], f64)> {
+        let v = &self.values;
+        let mut w = [0.0; 4];
+        let mut d: f64 = 0.0;
+        for k in 0..4 {
+            let t = v[faces[k] as usize];
+            w[k] = if k % 2 == 0 { t } else { -t } * inv_volume;
+            if w[k] < 0.0 {
+                d = d.max(t.abs() * inv_area2[faces[k] as usize]);
+                if d > tol_mm {
+                    return None;
+                }
+            }
+        }
+        Some((w, d))
+    }
+
+    /// Barycentric coordinates of the query in tetrahedron `t` (corners ascending) with
+    /// `inv_volume = 1 / det[b − a, c − a, d − a]`.
+    #[inline]
+    pub fn barycentric(&self, t: &[u16; 4], inv_volume: f64) -> [f64; 4] {
+        let (a, b, c, d) = (t[0] as usize, t[1] as usize, t[2] as usize, t[3] as usize);
+        let v = &self.values;
+        [
+            v[triple_index(b, c, d)] * inv_volume,
+            -v[triple_index(a, c, d)] * inv_volume,
+            v[triple_index(a, b, d)] * inv_volume,
+            -v[triple_index(a, b, c)] * inv_volume,
+        ]
+    }
+}
+
+/// The distinct face triples of `tets` (corners ascending), as `(index, [i, j, k])` in
+/// ascending index order: all a [`TripleTable`] needs for them.
+pub fn used_triples(tets: &[[u16; 4]]) -> Vec<(u32, [u16; 3])> {
+    let mut out: Vec<(u32, [u16; 3])> = tets
+        .iter()
+        .flat_map(|t| {
+            let (a, b, c, d) = (t[0], t[1], t[2], t[3]);
+            [[b, c, d], [a, c, d], [a, b, d], [a, b, c]]
+        })
+        .map(|f| {
+            (
+                triple_index(f[0] as usize, f[1] as usize, f[2] as usize) as u32,
+                f,
+            )
+        })
+        .collect();
+    out.sort_unstable_by_key(|e| e.0);
+    out.dedup_by_key(|e| e.0);
+    out
+}
+
+/// `1 / (2 · area)` of the triangle of every triple of `points`, in [`triple_index`]
+/// order (0 for degenerate triangles).
+pub fn triple_inv_area2(points: &[Point3<f64>]) -> Vec<f64> {
+    let n = points.len();
+    let mut out = vec![0.0; n * n.saturating_sub(1) * n.saturating_sub(2) / 6];
+    for k in 2..n {
+        for j in 1..k {
+            for i in 0..j {
+                let a2 = (points[j] - points[i])
+                    .cross(&(points[k] - points[i]))
+                    .norm();
+                out[triple_index(i, j, k)] = if a2 > 0.0 { 1.0 / a2 } else { 0.0 };
+            }
+        }
+    }
+    out
+}
+
+/// Closest point to `x` on the triangle `a b c` (Ericson, Real-Time Collision Detection
+/// §5.1.5), as barycentric weights `(wa, wb, wc)`, convex. Works for degenerate triangles.
+pub fn closest_on_triangle(
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    c: &Point3<f64>,
+    x: &Point3<f64>,
+) -> [f64; 3] {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = x - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return [1.0, 0.0, 0.0];
+    }
+    let bp = x - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return [0.0, 1.0, 0.0];
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return [1.0 - v, v, 0.0];
+    }
+    let cp = x - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return [0.0, 0.0, 1.0];
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return [1.0 - w, 0.0, w];
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return [0.0, 1.0 - w, w];
+    }
+    let denom = va + vb + vc;
+    if denom.abs() <= f64::MIN_POSITIVE {
+        // Degenerate (collinear) triangle: best of its three edges.
+        let edges = [(a, b, [0, 1]), (b, c, [1, 2]), (a, c, [0, 2])];
+        let mut best = [1.0, 0.0, 0.0];
+        let mut best_d = f64::INFINITY;
+        for (p, q, [i, j]) in edges {
+            let t = closest_on_segment(p, q, x);
+            let y = p + (q - p) * t;
+            let d = (y - x).norm_squared();
+            if d < best_d {
+                best_d = d;
+                best = [0.0; 3];
+                best[i] = 1.0 - t;
+                best[j] = t;
+            }
+        }
+        return best;
+    }
+    let v = vb / denom;
+    let w = vc / denom;
+    [1.0 - v - w, v, w]
+}
+
+/// Parameter `t ∈ [0, 1]` of the closest point `a + t (b − a)` to `x` on segment `a b`.
+pub fn closest_on_segment(a: &Point3<f64>, b: &Point3<f64>, x: &Point3<f64>) -> f64 {
+    let d = b - a;
+    let l2 = d.norm_squared();
+    if l2 <= 0.0 {
+        return 0.0;
+    }
+    ((x - a).dot(&d) / l2).clamp(0.0, 1.0)
+}
+
+/// Closest point to `x` on the simplex with `corners` (1 to 4 points), as convex weights
+/// over the corners (unused entries 0). Inside a tetrahedron the weights are `x`'s own
+/// barycentric coordinates.
+pub fn closest_on_simplex(corners: &[Point3<f64>], x: &Point3<f64>) -> [f64; 4] {
+    match corners {
+        [a] => {
+            let _ = a;
+            [1.0, 0.0, 0.0, 0.0]
+        }
+        [a, b] => {
+            let t = closest_on_segment(a, b, x);
+            [1.0 - t, t, 0.0, 0.0]
+        }
+        [a, b, c] => {
+            let w = closest_on_triangle(a, b, c, x);
+            [w[0], w[1], w[2], 0.0]
+        }
+        [a, b, c, d] => {
+            let p = [*a, *b, *c, *d];
+            if let Some(w) = tet_barycentric(&p, x)
+                && w.iter().all(|&v| v >= 0.0)
+            {
+                return w;
+            }
+            let faces = [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]];
+            let mut best = [1.0, 0.0, 0.0, 0.0];
+            let mut best_d = f64::INFINITY;
+            for f in faces {
+                let w = closest_on_triangle(&p[f[0]], &p[f[1]], &p[f[2]], x);
+                let y = Point3::from(
+                    p[f[0]].coords * w[0] + p[f[1]].coords * w[1] + p[f[2]].coords * w[2],
+                );
+                let dd = (y - x).norm_squared();
+                if dd < best_d {
+                    best_d = dd;
+                    best = [0.0; 4];
+                    for k in 0..3 {
+                        best[f[k]] = w[k];
+                    }
+                }
+            }
+            best
+        }
+        _ => [1.0, 0.0, 0.0, 0.0],
+    }
+}
+
+/// The point with convex `weights` over `corners`.
+pub fn combine(corners: &[Point3<f64>], weights: &[f64; 4]) -> Point3<f64> {
+    let mut v = Vector3::zeros();
+    for (p, w) in corners.iter().zip(weights) {
+        v += p.coords * *w;
+    }
+    Point3::from(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tet() -> [Point3<f64>; 4] {
+        [
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+            Point3::new(0.0, 3.0, 0.0),
+            Point3::new(0.0, 0.0, 4.0),
+        ]
+    }
+
+    #[test]
+    fn barycentric_reproduces_point() {
+        let p = tet();
+        let x = Point3::new(0.3, 0.5, 0.7);
+        let w = tet_barycentric(&p, &x).unwrap();
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!((combine(&p, &w) - x).norm() < 1e-12);
+        assert!(w.iter().all(|&v| v > 0.0));
+        let flat = [p[0], p[1], p[2], Point3::new(1.0, 1.0, 0.0)];
+        assert!(tet_barycentric(&flat, &x).is_none());
+    }
+
+    #[test]
+    fn triple_table_gives_barycentrics() {
+        let pts = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(2.0, 0.1, 0.0),
+            Point3::new(0.3, 3.0, 0.0),
+            Point3::new(0.0, 0.2, 4.0),
+            Point3::new(1.0, 1.0, 1.0),
+        ];
+        let x = Point3::new(0.4, 0.6, 0.5);
+        let mut table = TripleTable::default();
+        table.fill(&pts, &x);
+        for t in [[0u16, 1, 2, 3], [0, 1, 2, 4], [1, 2, 3, 4], [0, 2, 3, 4]] {
+            let p = [
+                pts[t[0] as usize],
+                pts[t[1] as usize],
+                pts[t[2] as usize],
+                pts[t[3] as usize],
+            ];
+            let inv = 1.0 / orient(&p[0], &p[1], &p[2], &p[3]);
+            let w = table.barycentric(&t, inv);
+            let expect = tet_barycentric(&p, &x).unwrap();
+            for k in 0..4 {
+                assert!(
+                    (w[k] - expect[k]).abs() < 1e-12,
+                    "{t:?}: {w:?} vs {expect:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn closest_points_are_closest() {
+        let p = tet();
+        // Brute force over a fine sampling of the tetrahedron's faces for a few outside points.
+        for x in [
+            Point3::new(3.0, 3.0, 3.0),
+            Point3::new(-1.0, -1.0, -1.0),
+            Point3::new(1.0, 1.0, -2.0),
+            Point3::new(0.5, 5.0, 0.5),
+        ] {
+            let w = closest_on_simplex(&p, &x);
+            assert!(w.iter().all(|&v| v >= -1e-12));
+            assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+            let d = (combine(&p, &w) - x).norm();
+            let n = 40;
+            let mut brute = f64::INFINITY;
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    for k in 0..=n - i - j {
+                        let (a, b, c) = (
+                            i as f64 / n as f64,
+                            j as f64 / n as f64,
+                            k as f64 / n as f64,
+                        );
+                        let y = combine(&p, &[1.0 - a - b - c, a, b, c]);
+                        brute = brute.min((y - x).norm());
+                    }
+                }
+            }
+            assert!(d <= brute + 1e-9, "{d} > {brute}");
+            assert!(d > brute - 0.2, "{d} far below sampled {brute}");
+        }
+        // Inside: the point itself.
+        let x = Point3::new(0.2, 0.2, 0.2);
+        assert!((combine(&p, &closest_on_simplex(&p, &x)) - x).norm() < 1e-12);
+        // Segments and points.
+        let s = [Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0)];
+        let w = closest_on_simplex(&s, &Point3::new(2.0, 1.0, 0.0));
+        assert_eq!(w, [0.0, 1.0, 0.0, 0.0]);
+        let tri = [s[0], s[1], Point3::new(2.0, 0.0, 0.0)];
+        let w = closest_on_simplex(&tri, &Point3::new(1.5, 1.0, 0.0));
+        assert!((combine(&tri, &w) - Point3::new(1.5, 0.0, 0.0)).norm() < 1e-12);
+    }
+}

@@ -1,0 +1,604 @@
+//! Dense face reconstruction from bundles by local geometric indexing (Cong, Lan and
+//! Fedkiw 2019, "Local Geometric Indexing of High Resolution Data for Facial Reconstruction
+//! from Sparse Markers").
+//!
+//! Each marker indexes the dataset on its own: its point cloud (the marker's position on
+//! every shape, §4) is tetrahedralized with all four-point combinations (§4.1); a bundle
+//! inside a tetrahedron gives convex barycentric weights over four shapes, Eq. (1); when
+//! several tetrahedra contain it, the one whose local geometry best fits the neighbouring
+//! bundles wins, with a preference for the previous frame's shapes (§5.1); outside every
+//! tetrahedron the bundle is projected onto the tetrahedral volume (§4). The markers' local
+//! geometries are sewn together with natural-neighbour weights computed in UV space (§5),
+//! optionally smoothed in time (§7), with the jaw unskinned and reskinned when the dataset
+//! has a jaw rig (§6, Eq. 2).
+//!
+//! Everything that does not depend on the frame is built once in [`LgiIndex`]; per frame
+//! only grid lookups, a few candidate scores per marker and a sparse blend over the face
+//! vertices remain.
+//!
+//! # Deviations
+//! - **Passing through projected bundles** ([`LgiParams::snap_to_bundles`], on by default):
+//!   when a bundle lies outside every tetrahedron, the paper keeps the projection and the
+//!   surface misses the bundle. We add the residual (bundle minus projection) to the
+//!   marker's local geometry, so the natural-neighbour blend still interpolates every
+//!   bundle, as the paper does for its RBF variant ("smoothly interpolating the remaining
+//!   displacements needed to properly interpolate the bundles", §7). Bundles are what was
+//!   measured; a surface that misses them looks wrong against the plates.
+//!
+//! Depends on [`crate::mesh`], [`crate::dataset`] and [`crate::bundles`].
+
+pub mod barycentric;
+pub mod grid;
+pub mod hull;
+pub mod index;
+pub mod jaw;
+pub mod natural_neighbor;
+pub mod point_cloud;
+pub mod select;
+pub mod temporal;
+pub mod tetrahedra;
+
+use std::sync::Arc;
+
+use nalgebra::{Point3, Vector3};
+
+pub use index::{IndexStats, LgiIndex, MarkerIndex};
+pub use natural_neighbor::{NaturalNeighborError, NaturalNeighborWeights};
+pub use temporal::{Kernel, TemporalParams, WeightSmoother};
+
+use crate::bundles::FrameBundles;
+use crate::dataset::{Dataset, JawPose, MarkerLayout};
+
+/// Errors of local geometric indexing.
+#[derive(Debug, thiserror::Error)]
+pub enum LgiError {
+    /// A parameter is out of range.
+    #[error("invalid LGI parameter {field} = {value}: {reason}")]
+    Param {
+        /// Field name.
+        field: &'static str,
+        /// Its value.
+        value: String,
+        /// The valid range.
+        reason: &'static str,
+    },
+    /// The marker layout does not fit the dataset.
+    #[error("marker layout: {0}")]
+    Layout(String),
+    /// The dataset cannot be indexed.
+    #[error("dataset: {0}")]
+    Dataset(String),
+    /// The blending weights could not be built.
+    #[error(transparent)]
+    Blend(#[from] NaturalNeighborError),
+    /// A frame does not fit the layout or has no bundle at all.
+    #[error("frame {frame}: {message}")]
+    Frame {
+        /// Frame number.
+        frame: u64,
+        /// What was wrong.
+        message: String,
+    },
+}
+
+/// Parameters of local geometric indexing. Every limit of §4.1 is a field here.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LgiParams {
+    /// A shape whose displacement at a marker is under this does not involve the marker and
+    /// is left out of its point cloud (§4.1), mm. Default 0.01.
+    pub min_motion_mm: f64,
+    /// Points of one cloud closer than this are merged into one point of the
+    /// tetrahedralization (the least-deforming shape represents it), mm. Default 0.01.
+    pub merge_tolerance_mm: f64,
+    /// A merged or still shape stays as a variant of its point when its displacement of
+    /// the marker's patch differs from every other variant's by at least this (RMS), mm;
+    /// otherwise it is redundant and dropped. Default 0.0001.
+    pub variant_tolerance_mm: f64,
+    /// Tetrahedra with shape quality `6√2·V / l_rms³` under this are too thin (§4.1).
+    /// Default 0.001 (only near-flat ones go: a thin tetrahedron still interpolates
+    /// correctly, and keeping many tetrahedra is what makes LGI accurate).
+    pub min_tet_quality: f64,
+    /// Tetrahedra with an edge longer than this are too large (§4.1), mm. Default 1000
+    /// (no limit: every combination of a face's shapes is a plausible in-between).
+    pub max_tet_edge_mm: f64,
+    /// Most tetrahedra kept per marker (the best-shaped win, see
+    /// [`tetrahedra`]). Default 10 000: on ICT (53 shapes, 120 markers) about 0.8 M
+    /// tetrahedra and 0.123 mm mean error, against 1.5 M and 0.109 mm uncapped.
+    pub max_tets_per_marker: usize,
+    /// Most grid list entries (4 bytes each) per tetrahedron of a marker, on average; the
+    /// grid gets coarser to fit. Heavily overlapping tetrahedra make fine grids list the
+    /// same tetrahedra in many cells. Default 8.
+    pub grid_entries_per_tet: f64,
+    /// Cost added to a candidate per fraction of its corners not shared with the previous
+    /// frame's choice (§5.1 temporal coherence), mm. 0 turns the preference off.
+    /// Default 0.05.
+    pub temporal_weight_mm: f64,
+    /// Tetrahedra within this distance of a bundle compete with those containing it, their
+    /// distance counting in the neighbour criterion (§5.1), mm. For noisy bundles: a
+    /// bundle pushed by noise into (or out of) a tetrahedron is then not bound to it, and
+    /// the neighbours pick the shapes. 0 (default) is the paper's exact containment.
+    pub bundle_tolerance_mm: f64,
+    /// Add the residual of a projected bundle to its marker's geometry so the surface
+    /// still passes through it (see the module's Deviations). Default true.
+    pub snap_to_bundles: bool,
+    /// Work in unskinned space when the dataset has a jaw rig and a jaw pose per shape
+    /// (§6). Default true.
+    pub use_jaw: bool,
+    /// Temporal smoothing of the barycentric weights (§7). Default off.
+    pub smoothing: TemporalParams,
+}
+
+impl Default for LgiParams {
+    fn default() -> Self {
+        Self {
+            min_motion_mm: 0.01,
+            merge_tolerance_mm: 0.01,
+            variant_tolerance_mm: 0.0001,
+            min_tet_quality: 0.001,
+            max_tet_edge_mm: 1000.0,
+            max_tets_per_marker: 10_000,
+            grid_entries_per_tet: 8.0,
+            temporal_weight_mm: 0.05,
+            bundle_tolerance_mm: 0.0,
+            snap_to_bundles: true,
+            use_jaw: true,
+            smoothing: TemporalParams::default(),
+        }
+    }
+}
+
+impl LgiParams {
+    /// Preset for noisy bundles (triangulation noise of a few tenths of a millimetre):
+    /// tetrahedra within 0.5 mm of a bundle compete on the neighbour criterion, and the
+    /// surface is not forced through each bundle (which would copy the noise into it).
+    pub fn noisy() -> Self {
+        Self {
+            bundle_tolerance_mm: 0.5,
+            snap_to_bundles: false,
+            ..Self::default()
+        }
+    }
+
+    /// Checks every field's range.
+    ///
+    /// # Errors
+    /// [`LgiError::Param`] naming the first bad field.
+    pub fn validate(&self) -> Result<(), LgiError> {
+        let nonneg = |field: &'static str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(LgiError::Param {
+                    field,
+                    value: v.to_string(),
+                    reason: "must be a finite number ≥ 0",
+                })
+            }
+        };
+        nonneg("min_motion_mm", self.min_motion_mm)?;
+        nonneg("merge_tolerance_mm", self.merge_tolerance_mm)?;
+        nonneg("variant_tolerance_mm", self.variant_tolerance_mm)?;
+        nonneg("temporal_weight_mm", self.temporal_weight_mm)?;
+        nonneg("bundle_tolerance_mm", self.bundle_tolerance_mm)?;
+        if !(0.0..1.0).contains(&self.min_tet_quality) {
+            return Err(LgiError::Param {
+                field: "min_tet_quality",
+                value: self.min_tet_quality.to_string(),
+                reason: "must be in [0, 1)",
+            });
+        }
+        if self.max_tet_edge_mm.is_nan() || self.max_tet_edge_mm <= 0.0 {
+            return Err(LgiError::Param {
+                field: "max_tet_edge_mm",
+                value: self.max_tet_edge_mm.to_string(),
+                reason: "must be > 0",
+            });
+        }
+        if self.max_tets_per_marker == 0 {
+            return Err(LgiError::Param {
+                field: "max_tets_per_marker",
+                value: "0".into(),
+                reason: "must be ≥ 1",
+            });
+        }
+        if self.grid_entries_per_tet.is_nan() || self.grid_entries_per_tet < 1.0 {
+            return Err(LgiError::Param {
+                field: "grid_entries_per_tet",
+                value: self.grid_entries_per_tet.to_string(),
+                reason: "must be ≥ 1",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One marker's result for a frame: convex weights over its point cloud.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerWeights {
+    /// Whether the marker has a bundle in this frame.
+    pub present: bool,
+    /// Whether the bundle lay inside a tetrahedron (else it was projected).
+    pub inside: bool,
+    /// `(variant index, weight)`, weights summing to 1 (4 entries at most before
+    /// smoothing).
+    pub points: Vec<(u16, f64)>,
+}
+
+/// The indexing result of one frame, before blending.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameWeights {
+    /// Frame number.
+    pub frame: u64,
+    /// Per marker, in layout order.
+    pub markers: Vec<MarkerWeights>,
+    /// Jaw pose θ of the frame (when the index works in unskinned space).
+    pub jaw: Option<JawPose>,
+}
+
+/// Local geometric indexing solver: the index plus the per-take state (previous frame's
+/// choices for temporal coherence, cached blending weights for missing-marker sets).
+///
+/// # Example
+/// ```no_run
+/// # use helmcap::lgi::{LgiParams, LgiSolver};
+/// # fn f(dataset: &helmcap::dataset::Dataset, layout: &helmcap::dataset::MarkerLayout,
+/// #      frame: &helmcap::bundles::FrameBundles) -> Result<(), helmcap::lgi::LgiError> {
+/// let mut solver = LgiSolver::new(dataset, layout, &LgiParams::default())?;
+/// let positions = solver.solve(frame)?; // every vertex of the neutral mesh, mm
+/// # Ok(()) }
+/// ```
+#[derive(Debug)]
+pub struct LgiSolver {
+    index: Arc<LgiIndex>,
+    params: LgiParams,
+    previous: Vec<Option<[u16; 4]>>,
+    scratch: select::Scratch,
+    /// Recent missing-marker sets and the recomputed weights of the affected vertices.
+    missing_cache: Vec<(Vec<bool>, Arc<MissingWeights>)>,
+}
+
+/// Blending weights of the vertices affected by a set of missing markers.
+#[derive(Debug)]
+struct MissingWeights {
+    /// Whether each vertex is affected.
+    affected: Vec<bool>,
+    /// `(vertex, weights)` for the affected vertices.
+    weights: Vec<(u32, Vec<(u32, f64)>)>,
+}
+
+/// Number of missing-marker sets whose weights are kept.
+const MISSING_CACHE: usize = 8;
+
+impl LgiSolver {
+    /// Builds the index of `dataset` for `layout` and a solver over it.
+    ///
+    /// # Errors
+    /// As [`LgiIndex::build`].
+    pub fn new(
+        dataset: &Dataset,
+        layout: &MarkerLayout,
+        params: &LgiParams,
+    ) -> Result<Self, LgiError> {
+        let index = LgiIndex::build(dataset, layout, params)?;
+        Self::from_index(Arc::new(index), params)
+    }
+
+    /// A solver over a prebuilt (possibly shared or cached) index. Only the per-frame
+    /// parameters of `params` are used; the index keeps those it was built with.
+    ///
+    /// # Errors
+    /// [`LgiError::Param`] when `params` is invalid.
+    pub fn from_index(index: Arc<LgiIndex>, params: &LgiParams) -> Result<Self, LgiError> {
+        params.validate()?;
+        let n = index.markers.len();
+        Ok(Self {
+            index,
+            params: *params,
+            previous: vec![None; n],
+            scratch: select::Scratch::default(),
+            missing_cache: Vec::new(),
+        })
+    }
+
+    /// The index.
+    pub fn index(&self) -> &Arc<LgiIndex> {
+        &self.index
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &LgiParams {
+        &self.params
+    }
+
+    /// Forgets the previous frame (call between unrelated takes or frames).
+    pub fn reset(&mut self) {
+        self.previous.iter_mut().for_each(|p| *p = None);
+    }
+
+    /// Solves one frame: indexing (§4, §5.1) then blending (§5). No temporal smoothing
+    /// (that needs future frames: see [`LgiSolver::solve_sequence`]); the temporal
+    /// preference of §5.1 does apply, so call [`LgiSolver::reset`] between unrelated frames.
+    ///
+    /// Returns every vertex of the neutral mesh, mm, head frame.
+    ///
+    /// # Errors
+    /// [`LgiError::Frame`] when the frame's marker count differs from the layout or no
+    /// marker is present.
+    pub fn solve(&mut self, bundles: &FrameBundles) -> Result<Vec<Point3<f64>>, LgiError> {
+        let w = self.index_frame(bundles, None)?;
+        self.reconstruct(&w, bundles)
+    }
+
+    /// Solves a whole take in order, with the temporal smoothing of `params.smoothing`.
+    ///
+    /// # Errors
+    /// As [`LgiSolver::solve`], for the first bad frame.
+    pub fn solve_sequence(
+        &mut self,
+        frames: &[FrameBundles],
+    ) -> Result<Vec<Vec<Point3<f64>>>, LgiError> {
+        let mut smoother = WeightSmoother::new(self.params.smoothing);
+        let mut out = Vec::with_capacity(frames.len());
+        let mut emitted = 0usize;
+        for f in frames {
+            let w = self.index_frame(f, None)?;
+            for s in smoother.push(w) {
+                out.push(self.reconstruct(&s, &frames[emitted])?);
+                emitted += 1;
+            }
+        }
+        for s in smoother.finish() {
+            out.push(self.reconstruct(&s, &frames[emitted])?);
+            emitted += 1;
+        }
+        Ok(out)
+    }
+
+    fn check_frame(&self, bundles: &FrameBundles) -> Result<(), LgiError> {
+        if bundles.positions.len() != self.index.markers.len() {
+            return Err(LgiError::Frame {
+                frame: bundles.frame,
+                message: format!(
+                    "{} bundles for a layout of {} markers",
+                    bundles.positions.len(),
+                    self.index.markers.len()
+                ),
+            });
+        }
+        if !bundles.positions.iter().any(is_usable) {
+            return Err(LgiError::Frame {
+                frame: bundles.frame,
+                message: "no marker present".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The frame's bundles in the index's space (unskinned by `jaw` when the index uses
+    /// the jaw); `None` for missing or non-finite bundles.
+    fn index_space_bundles(
+        &self,
+        bundles: &FrameBundles,
+        jaw: Option<&JawPose>,
+    ) -> Vec<Option<Point3<f64>>> {
+        let unskin = self.index.jaw.as_ref().zip(jaw).map(|(j, pose)| {
+            let t = j.rig.jaw_transform(pose);
+            (j, t)
+        });
+        bundles
+            .positions
+            .iter()
+            .zip(&self.index.markers)
+            .map(|(p, mi)| {
+                let p = p.filter(|p| is_usable(&Some(*p)))?;
+                Some(match &unskin {
+                    Some((j, t)) => j.rig.unskin_point(t, j.rig.weights[mi.vertex as usize], &p),
+                    None => p,
+                })
+            })
+            .collect()
+    }
+
+    /// Indexes one frame (§4, §5.1): per marker, the chosen tetrahedron and weights.
+    /// `jaw` is the frame's jaw pose θ; `None` estimates it from the bundles when the index
+    /// works in unskinned space.
+    ///
+    /// # Errors
+    /// As [`LgiSolver::solve`].
+    pub fn index_frame(
+        &mut self,
+        bundles: &FrameBundles,
+        jaw: Option<JawPose>,
+    ) -> Result<FrameWeights, LgiError> {
+        self.check_frame(bundles)?;
+        let jaw = match (&self.index.jaw, jaw) {
+            (None, _) => None,
+            (Some(_), Some(j)) => Some(j),
+            (Some(_), None) => Some(jaw::estimate_pose(&self.index, bundles)),
+        };
+        let xs = self.index_space_bundles(bundles, jaw.as_ref());
+        let sp = select::SelectParams {
+            temporal_weight_mm: self.params.temporal_weight_mm,
+            bundle_tolerance_mm: self.params.bundle_tolerance_mm,
+        };
+        let use_prev = self.params.temporal_weight_mm > 0.0;
+        let mut markers = Vec::with_capacity(xs.len());
+        let mut nbr = Vec::new();
+        for (m, x) in xs.iter().enumerate() {
+            let mi = &self.index.markers[m];
+            let Some(x) = x else {
+                markers.push(MarkerWeights {
+                    present: false,
+                    inside: false,
+                    points: Vec::new(),
+                });
+                continue;
+            };
+            nbr.clear();
+            nbr.extend(mi.neighbors.iter().map(|&k| xs[k as usize]));
+            let prev = if use_prev {
+                self.previous[m].as_ref()
+            } else {
+                None
+            };
+            let c = select::choose(mi, x, &nbr, prev, &sp, &mut self.scratch);
+            self.previous[m] = Some(c.corners);
+            let dim = mi.simplices.dim as usize;
+            let mut points: Vec<(u16, f64)> = Vec::with_capacity(4);
+            for k in 0..=dim {
+                if c.weights[k] > 0.0 {
+                    let var = c.variants[k] as u16;
+                    match points.iter_mut().find(|e| e.0 == var) {
+                        Some(e) => e.1 += c.weights[k],
+                        None => points.push((var, c.weights[k])),
+                    }
+                }
+            }
+            if points.is_empty() {
+                points.push((c.variants[0] as u16, 1.0));
+            }
+            markers.push(MarkerWeights {
+                present: true,
+                inside: c.inside,
+                points,
+            });
+        }
+        Ok(FrameWeights {
+            frame: bundles.frame,
+            markers,
+            jaw,
+        })
+    }
+
+    /// Blends the markers' local geometries across the face (§5) and reskins the jaw
+    /// (§6, Eq. 2). `bundles` are the frame's bundles, used for the residual that makes the
+    /// surface pass through each present bundle (see [`LgiParams::snap_to_bundles`]).
+    ///
+    /// Returns every vertex of the neutral mesh, mm, head frame.
+    ///
+    /// # Errors
+    /// As [`LgiSolver::solve`].
+    pub fn reconstruct(
+        &mut self,
+        weights: &FrameWeights,
+        bundles: &FrameBundles,
+    ) -> Result<Vec<Point3<f64>>, LgiError> {
+        self.check_frame(bundles)?;
+        let index = Arc::clone(&self.index);
+        let xs = self.index_space_bundles(bundles, weights.jaw.as_ref());
+        let present: Vec<bool> = weights
+            .markers
+            .iter()
+            .zip(&xs)
+            .map(|(m, x)| m.present && x.is_some())
+            .collect();
+        // Residual per marker: bundle minus the candidate's marker position.
+        let residual: Vec<Vector3<f64>> = index
+            .markers
+            .iter()
+            .zip(&weights.markers)
+            .zip(&xs)
+            .map(|((mi, mw), x)| match x {
+                Some(x) if self.params.snap_to_bundles && mw.present => {
+                    let at: Vector3<f64> = mw
+                        .points
+                        .iter()
+                        .map(|&(j, w)| mi.variant_position[j as usize].coords * w)
+                        .sum();
+                    x.coords - at
+                }
+                _ => Vector3::zeros(),
+            })
+            .collect();
+        let missing = if present.iter().all(|&p| p) {
+            None
+        } else {
+            Some(self.missing_weights(&present)?)
+        };
+        let n = index.neutral.len();
+        let mut acc = vec![Vector3::<f64>::zeros(); n];
+        for (m, mi) in index.markers.iter().enumerate() {
+            if !present[m] {
+                continue;
+            }
+            let ns = mi.support.len();
+            let pts = &weights.markers[m].points;
+            let r = residual[m];
+            for (s, &(v, lam)) in mi.support.iter().enumerate() {
+                if let Some(mw) = &missing
+                    && mw.affected[v as usize]
+                {
+                    continue;
+                }
+                let mut d = r;
+                for &(j, w) in pts {
+                    d += mi.patch[j as usize * ns + s] * w;
+                }
+                acc[v as usize] += d * lam;
+            }
+        }
+        if let Some(mw) = &missing {
+            for (v, ws) in &mw.weights {
+                let v = *v as usize;
+                let mut a = Vector3::zeros();
+                for &(m, lam) in ws {
+                    let m = m as usize;
+                    let mi = &index.markers[m];
+                    let mut d = residual[m];
+                    for &(j, w) in &weights.markers[m].points {
+                        if let Some(s) = mi.shapes[j as usize] {
+                            d += index.displacements[s as usize][v] * w;
+                        }
+                    }
+                    a += d * lam;
+                }
+                acc[v] = a;
+            }
+        }
+        let mut out: Vec<Point3<f64>> =
+            index.neutral.iter().zip(&acc).map(|(x, d)| x + d).collect();
+        if let (Some(j), Some(pose)) = (&index.jaw, &weights.jaw) {
+            let t = j.rig.jaw_transform(pose);
+            for (p, &w) in out.iter_mut().zip(&j.rig.weights) {
+                *p = j.rig.skin_point(&t, w, p);
+            }
+        }
+        Ok(out)
+    }
+
+    /// Blending weights of the vertices affected by the missing markers (cached per set).
+    fn missing_weights(&mut self, present: &[bool]) -> Result<Arc<MissingWeights>, LgiError> {
+        if let Some(pos) = self.missing_cache.iter().position(|(k, _)| k == present) {
+            let entry = self.missing_cache.remove(pos);
+            let w = Arc::clone(&entry.1);
+            self.missing_cache.push(entry);
+            return Ok(w);
+        }
+        let n = self.index.neutral.len();
+        let mut affected = vec![false; n];
+        for (m, mi) in self.index.markers.iter().enumerate() {
+            if !present[m] {
+                for &(v, _) in &mi.support {
+                    affected[v as usize] = true;
+                }
+            }
+        }
+        let vertices: Vec<u32> = (0..n as u32).filter(|&v| affected[v as usize]).collect();
+        let new = self.index.weights.recompute(present, &vertices)?;
+        let mw = Arc::new(MissingWeights {
+            affected,
+            weights: vertices.into_iter().zip(new).collect(),
+        });
+        if self.missing_cache.len() >= MISSING_CACHE {
+            self.missing_cache.remove(0);
+        }
+        self.missing_cache.push((present.to_vec(), Arc::clone(&mw)));
+        Ok(mw)
+    }
+}
+
+/// Whether a bundle is present and finite.
+fn is_usable(p: &Option<Point3<f64>>) -> bool {
+    p.is_some_and(|p| p.coords.iter().all(|c| c.is_finite()))
+}

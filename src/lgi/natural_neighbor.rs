@@ -1,0 +1,624 @@
+//! Natural-neighbour (Sibson) blending weights of every mesh vertex over the markers,
+//! computed in UV space (Cong et al. 2019 §5: "constructing the Voronoi diagram and
+//! calculating the natural neighbor weights in UV/texture space and subsequently mapping
+//! them back onto the 3D mesh yielded smoother natural neighbor weights").
+//!
+//! A vertex placed at a marker gets weight 1 on that marker and 0 elsewhere, so the blended
+//! surface passes through every bundle; the weights are continuous, so the surface is C0
+//! (Piper 1993, reference 33 of the paper).
+//!
+//! # Vertices the UV Voronoi diagram does not cover
+//! - **Outside the markers' convex hull** (in UV): Sibson coordinates are undefined there.
+//!   The vertex takes the weights of its closest point on the hull, which on a hull edge are
+//!   the linear weights of the edge's two markers (Sibson coordinates restricted to the
+//!   hull boundary). Projection onto a convex set is continuous, so the weights stay
+//!   continuous across the hull and the outer face follows the outermost markers.
+//! - **On another UV island** than the one holding most markers (ears and neck in
+//!   ICT-FaceKit, the eyes, teeth and mouth socket, any vertex outside the dataset's face
+//!   range): UV distances to the markers mean nothing there. The vertex copies the weights
+//!   of the nearest (3D, neutral pose) vertex that has UV weights, and so is carried along
+//!   with the nearest part of the face. Its own displacement in each chosen shape is still
+//!   used. A marker on such an island stands, in UV, at its nearest main-island vertex, so
+//!   the surface still passes through its bundle.
+//! - **A mesh without UVs**: the frontal projection (x, y) of the neutral stands in for UV.
+//!
+//! # Missing markers
+//! Removing a marker from the diagram changes only the weights of vertices whose inserted
+//! cell overlapped its cell, which are exactly the vertices with a non-zero weight on it
+//! ([`NaturalNeighborWeights::support`]). [`NaturalNeighborWeights::recompute`] redoes
+//! those vertices with the present markers only: the neighbours take the missing marker's
+//! area.
+
+use nalgebra::{Point2, Point3};
+use spade::{DelaunayTriangulation, HasPosition, Triangulation};
+
+use crate::mesh::Mesh;
+
+/// A marker site in the UV-space Delaunay triangulation.
+#[derive(Debug, Clone, Copy)]
+struct Site {
+    uv: spade::Point2<f64>,
+    marker: u32,
+}
+
+impl HasPosition for Site {
+    type Scalar = f64;
+    fn position(&self) -> spade::Point2<f64> {
+        self.uv
+    }
+}
+
+/// Errors from building the blending weights.
+#[derive(Debug, thiserror::Error)]
+pub enum NaturalNeighborError {
+    /// Two markers have the same UV position (or a UV is not finite).
+    #[error("markers {a} and {b} share UV position ({u}, {v}); every marker needs its own UV")]
+    SharedUv {
+        /// One marker index.
+        a: usize,
+        /// The other.
+        b: usize,
+        /// U coordinate.
+        u: f64,
+        /// V coordinate.
+        v: f64,
+    },
+    /// A marker vertex has no usable UV or is out of range.
+    #[error("marker {0} sits on a vertex with no usable texture coordinate")]
+    NoUv(usize),
+    /// Fewer than one marker to blend.
+    #[error("no markers to blend")]
+    NoMarkers,
+}
+
+/// Sparse blending weights: for every mesh vertex, `(marker, λ)` pairs with `Σ λ = 1`.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct NaturalNeighborWeights {
+    /// Start of each vertex's entries in `entries` (#V + 1).
+    pub offsets: Vec<u32>,
+    /// `(marker index, weight)` pairs.
+    pub entries: Vec<(u32, f64)>,
+    /// Vertex that each vertex copies its weights from (itself when it has UV weights).
+    pub source: Vec<u32>,
+    /// 2D coordinate of every vertex used for the diagram (UV or frontal projection);
+    /// NaN for vertices that copy.
+    pub uv: Vec<Point2<f64>>,
+    /// 2D coordinate of each marker.
+    pub marker_uv: Vec<Point2<f64>>,
+    /// Delaunay neighbours of each marker in UV space (all markers present), ascending.
+    pub neighbors: Vec<Vec<u32>>,
+}
+
+impl NaturalNeighborWeights {
+    /// Weights of vertex `v`.
+    pub fn of(&self, v: usize) -> &[(u32, f64)] {
+        &self.entries[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+
+    /// For each marker, the vertices with a non-zero weight on it and the weights
+    /// (ascending vertex order).
+    pub fn support(&self, marker_count: usize) -> Vec<Vec<(u32, f64)>> {
+        let mut out = vec![Vec::new(); marker_count];
+        for v in 0..self.offsets.len() - 1 {
+            for &(m, w) in self.of(v) {
+                out[m as usize].push((v as u32, w));
+            }
+        }
+        out
+    }
+
+    /// Builds the weights of every vertex of `mesh` over the markers on
+    /// `marker_vertices`; only vertices in `face` (and on a UV island holding a marker)
+    /// get UV weights, the others copy (see the module docs).
+    ///
+    /// # Errors
+    /// [`NaturalNeighborError`] when a marker has no usable UV or two markers share one.
+    pub fn build(
+        mesh: &Mesh,
+        face: &dyn Fn(usize) -> bool,
+        marker_vertices: &[u32],
+    ) -> Result<Self, NaturalNeighborError> {
+        if marker_vertices.is_empty() {
+            return Err(NaturalNeighborError::NoMarkers);
+        }
+        let n = mesh.vertex_count();
+        let (coords, island) = vertex_coords(mesh);
+        // The UV domain is the island holding the most markers; only its vertices get UV
+        // weights (UV coordinates of different islands are unrelated).
+        let mut counts: std::collections::HashMap<u32, usize> = Default::default();
+        for (m, &v) in marker_vertices.iter().enumerate() {
+            let v = v as usize;
+            if v >= n || !coords[v].x.is_finite() || !coords[v].y.is_finite() {
+                return Err(NaturalNeighborError::NoUv(m));
+            }
+            *counts.entry(island[v]).or_default() += 1;
+        }
+        let main = counts
+            .iter()
+            .max_by_key(|(i, c)| (**c, std::cmp::Reverse(**i)))
+            .map(|(i, _)| *i)
+            .ok_or(NaturalNeighborError::NoMarkers)?;
+        let uv_vertex: Vec<bool> = (0..n)
+            .map(|v| face(v) && coords[v].x.is_finite() && island[v] == main)
+            .collect();
+        // A marker off the main island stands at its nearest (3D) main-island vertex, so
+        // that vertex, and the marker's own vertex that copies it, get weight 1 on it.
+        let source = nearest_sources(&mesh.positions, &uv_vertex);
+        let mut marker_uv: Vec<Point2<f64>> = marker_vertices
+            .iter()
+            .map(|&v| coords[v as usize])
+            .collect();
+        let key = |p: &Point2<f64>| (p.x.to_bits(), p.y.to_bits());
+        let mut taken: std::collections::HashSet<(u64, u64)> = marker_vertices
+            .iter()
+            .filter(|&&v| uv_vertex[v as usize])
+            .map(|&v| key(&coords[v as usize]))
+            .collect();
+        let mut marker_sources = Vec::new();
+        for (m, &v) in marker_vertices.iter().enumerate() {
+            let v = v as usize;
+            if uv_vertex[v] {
+                continue;
+            }
+            // Nearest main-island vertex whose UV no other marker uses.
+            let mut cands: Vec<(f64, usize)> = (0..n)
+                .filter(|&u| uv_vertex[u])
+                .map(|u| ((mesh.positions[u] - mesh.positions[v]).norm_squared(), u))
+                .collect();
+            cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let u = cands
+                .iter()
+                .map(|c| c.1)
+                .find(|&u| !taken.contains(&key(&coords[u])))
+                .ok_or(NaturalNeighborError::NoUv(m))?;
+            taken.insert(key(&coords[u]));
+            marker_uv[m] = coords[u];
+            marker_sources.push((v, u as u32));
+        }
+        let mut source = source;
+        for (v, u) in marker_sources {
+            source[v] = u;
+        }
+        let all: Vec<bool> = vec![true; marker_vertices.len()];
+        let tri = triangulate(&marker_uv, &all)?;
+        let neighbors = delaunay_neighbors(&tri, marker_vertices.len());
+
+        // UV weights for the vertices that have them.
+        let mut per_vertex: Vec<Vec<(u32, f64)>> = vec![Vec::new(); n];
+        let nn = tri.natural_neighbor();
+        let mut buf = Vec::new();
+        for v in 0..n {
+            if uv_vertex[v] {
+                per_vertex[v] = weights_at(&tri, &nn, coords[v], &mut buf);
+            }
+        }
+        // Everything else copies its nearest UV-weighted vertex.
+        let mut offsets = Vec::with_capacity(n + 1);
+        let mut entries = Vec::new();
+        offsets.push(0u32);
+        for &s in &source {
+            entries.extend_from_slice(&per_vertex[s as usize]);
+            offsets.push(entries.len() as u32);
+        }
+        let uv = (0..n)
+            .map(|v| {
+                if uv_vertex[v] {
+                    coords[v]
+                } else {
+                    Point2::new(f64::NAN, f64::NAN)
+                }
+            })
+            .collect();
+        Ok(Self {
+            offsets,
+            entries,
+            source,
+            uv,
+            marker_uv,
+            neighbors,
+        })
+    }
+
+    /// Weights of `vertices` with only the markers flagged in `present` (missing markers
+    /// left out of the diagram); one list per vertex, in the given order. Vertices that
+    /// copy use their source's recomputed weights.
+    ///
+    /// # Errors
+    /// [`NaturalNeighborError::NoMarkers`] when no marker is present.
+    pub fn recompute(
+        &self,
+        present: &[bool],
+        vertices: &[u32],
+    ) -> Result<Vec<Vec<(u32, f64)>>, NaturalNeighborError> {
+        let tri = triangulate(&self.marker_uv, present)?;
+        let nn = tri.natural_neighbor();
+        let mut buf = Vec::new();
+        Ok(vertices
+            .iter()
+            .map(|&v| {
+                let s = self.source[v as usize] as usize;
+                weights_at(&tri, &nn, self.uv[s], &mut buf)
+            })
+            .collect())
+    }
+}
+
+/// Delaunay triangulation of the present markers' UVs.
+fn triangulate(
+    marker_uv: &[Point2<f64>],
+    present: &[bool],
+) -> Result<DelaunayTriangulation<Site>, NaturalNeighborError> {
+    let mut tri: DelaunayTriangulation<Site> = DelaunayTriangulation::new();
+    let mut seen: std::collections::HashMap<(u64, u64), usize> = Default::default();
+    let mut count = 0;
+    for (m, uv) in marker_uv.iter().enumerate() {
+        if !present.get(m).copied().unwrap_or(false) {
+            continue;
+        }
+        let site = Site {
+            uv: spade::Point2::new(uv.x, uv.y),
+            marker: m as u32,
+        };
+        if let Some(&other) = seen.get(&(uv.x.to_bits(), uv.y.to_bits())) {
+            return Err(NaturalNeighborError::SharedUv {
+                a: other,
+                b: m,
+                u: uv.x,
+                v: uv.y,
+            });
+        }
+        seen.insert((uv.x.to_bits(), uv.y.to_bits()), m);
+        tri.insert(site)
+            .map_err(|_| NaturalNeighborError::NoUv(m))?;
+        count += 1;
+    }
+    if count == 0 {
+        return Err(NaturalNeighborError::NoMarkers);
+    }
+    Ok(tri)
+}
+
+/// Sibson weights at `p`, or the weights of its closest point on the convex hull when
+/// `p` lies outside it.
+fn weights_at(
+    tri: &DelaunayTriangulation<Site>,
+    nn: &spade::NaturalNeighbor<'_, DelaunayTriangulation<Site>>,
+    p: Point2<f64>,
+    buf: &mut Vec<(spade::handles::FixedVertexHandle, f64)>,
+) -> Vec<(u32, f64)> {
+    let marker = |h: spade::handles::FixedVertexHandle| tri.vertex(h).data().marker;
+    if tri.num_vertices() == 1 {
+        return tri.vertices().map(|v| (v.data().marker, 1.0)).collect();
+    }
+    if tri.num_vertices() >= 3 && tri.all_vertices_on_line() {
+        // Degenerate diagram: fall through to the hull (segment) projection below.
+    } else if tri.num_vertices() >= 3 {
+        let q = spade::Point2::new(p.x, p.y);
+        nn.get_weights(q, buf);
+        if !buf.is_empty() && buf.iter().all(|e| e.1.is_finite()) {
+            return normalized(buf.iter().map(|&(h, w)| (marker(h), w)).collect());
+        }
+        // Numerically degenerate insertion cell (a point on a hull edge up to rounding,
+        // cocircular sites): the Delaunay triangle's linear weights, which agree with
+        // Sibson's on the hull edges.
+        if let spade::PositionInTriangulation::OnFace(f) = tri.locate(q) {
+            let face = tri.face(f);
+            let w = face.barycentric_interpolation(q);
+            if w.iter().all(|x| x.is_finite()) {
+                let vs = face.vertices();
+                return normalized(
+                    vs.iter()
+                        .zip(w)
+                        .map(|(v, x)| (v.data().marker, x.max(0.0)))
+                        .collect(),
+                );
+            }
+        }
+    }
+    // Outside the hull (or a line of markers): closest point on the hull's edges.
+    let mut best: Option<(f64, Vec<(u32, f64)>)> = None;
+    let q = Point3::new(p.x, p.y, 0.0);
+    for e in tri.undirected_edges() {
+        let [a, b] = e.vertices();
+        if tri.num_vertices() >= 3 && !tri.all_vertices_on_line() && !e.is_part_of_convex_hull() {
+            continue;
+        }
+        let pa = Point3::new(a.position().x, a.position().y, 0.0);
+        let pb = Point3::new(b.position().x, b.position().y, 0.0);
+        let t = super::barycentric::closest_on_segment(&pa, &pb, &q);
+        let d = (pa + (pb - pa) * t - q).norm_squared();
+        if best.as_ref().is_none_or(|(bd, _)| d < *bd) {
+            best = Some((d, vec![(a.data().marker, 1.0 - t), (b.data().marker, t)]));
+        }
+    }
+    best.map(|(_, w)| normalized(w)).unwrap_or_default()
+}
+
+/// Drops zero weights, renormalizes to sum 1, sorts by marker.
+fn normalized(mut w: Vec<(u32, f64)>) -> Vec<(u32, f64)> {
+    w.retain(|&(_, x)| x > 0.0);
+    let s: f64 = w.iter().map(|&(_, x)| x).sum();
+    if s > 0.0 {
+        for (_, x) in &mut w {
+            *x /= s;
+        }
+    }
+    w.sort_by_key(|&(m, _)| m);
+    w
+}
+
+/// Delaunay neighbours of each marker.
+fn delaunay_neighbors(tri: &DelaunayTriangulation<Site>, count: usize) -> Vec<Vec<u32>> {
+    let mut out = vec![Vec::new(); count];
+    for e in tri.undirected_edges() {
+        let [a, b] = e.vertices();
+        let (a, b) = (a.data().marker, b.data().marker);
+        out[a as usize].push(b);
+        out[b as usize].push(a);
+    }
+    for n in &mut out {
+        n.sort_unstable();
+        n.dedup();
+    }
+    out
+}
+
+/// 2D coordinate of each vertex (its first corner's UV, or the frontal projection when the
+/// mesh has no UVs) and the UV island of that corner (all 0 without UVs).
+fn vertex_coords(mesh: &Mesh) -> (Vec<Point2<f64>>, Vec<u32>) {
+    let n = mesh.vertex_count();
+    if !mesh.has_uvs() {
+        return (
+            mesh.positions
+                .iter()
+                .map(|p| Point2::new(p.x, p.y))
+                .collect(),
+            vec![0; n],
+        );
+    }
+    // Union-find over UV indices joined by polygons.
+    let mut parent: Vec<u32> = (0..mesh.uvs.len() as u32).collect();
+    fn find(parent: &mut [u32], mut a: u32) -> u32 {
+        while parent[a as usize] != a {
+            let g = parent[parent[a as usize] as usize];
+            parent[a as usize] = g;
+            a = g;
+        }
+        a
+    }
+    for f in 0..mesh.face_count() {
+        let t = mesh.face_uv(f);
+        for w in t.windows(2) {
+            let (a, b) = (find(&mut parent, w[0]), find(&mut parent, w[1]));
+            if a != b {
+                parent[a as usize] = b;
+            }
+        }
+    }
+    let mut coords = vec![Point2::new(f64::NAN, f64::NAN); n];
+    let mut island = vec![u32::MAX; n];
+    for (&v, &t) in mesh.face_vertices.iter().zip(&mesh.face_uvs) {
+        if island[v as usize] == u32::MAX {
+            island[v as usize] = find(&mut parent, t);
+            coords[v as usize] = mesh.uvs[t as usize];
+        }
+    }
+    (coords, island)
+}
+
+/// For each vertex, the nearest vertex (3D) flagged in `has`; itself when flagged.
+pub fn nearest_sources(positions: &[Point3<f64>], has: &[bool]) -> Vec<u32> {
+    use rayon::prelude::*;
+    let targets: Vec<u32> = (0..positions.len() as u32)
+        .filter(|&v| has[v as usize])
+        .collect();
+    if targets.is_empty() {
+        return (0..positions.len() as u32).collect();
+    }
+    let grid = PointGrid::new(positions, &targets);
+    (0..positions.len())
+        .into_par_iter()
+        .map(|v| {
+            if has[v] {
+                v as u32
+            } else {
+                grid.nearest(positions, &positions[v])
+            }
+        })
+        .collect()
+}
+
+/// A uniform bucket grid for nearest-point queries over a fixed set of mesh vertices.
+struct PointGrid {
+    min: Point3<f64>,
+    cell: f64,
+    res: [usize; 3],
+    offsets: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl PointGrid {
+    fn new(positions: &[Point3<f64>], targets: &[u32]) -> Self {
+        let mut min = positions[targets[0] as usize];
+        let mut max = min;
+        for &t in targets {
+            min = min.inf(&positions[t as usize]);
+            max = max.sup(&positions[t as usize]);
+        }
+        let ext = max - min;
+        let vol = (ext.x.max(1e-9)) * (ext.y.max(1e-9)) * (ext.z.max(1e-9));
+        let cell = (vol / (targets.len() as f64 / 4.0).max(1.0))
+            .cbrt()
+            .max(ext.max() / 128.0)
+            .max(1e-9);
+        let res = [
+            ((ext.x / cell) as usize + 1).min(256),
+            ((ext.y / cell) as usize + 1).min(256),
+            ((ext.z / cell) as usize + 1).min(256),
+        ];
+        let mut grid = Self {
+            min,
+            cell,
+            res,
+            offsets: Vec::new(),
+            items: Vec::new(),
+        };
+        let cells = res[0] * res[1] * res[2];
+        let mut count = vec![0u32; cells + 1];
+        let ids: Vec<usize> = targets
+            .iter()
+            .map(|&t| grid.cell_index(&grid.cell_of(&positions[t as usize])))
+            .collect();
+        for &c in &ids {
+            count[c + 1] += 1;
+        }
+        for c in 0..cells {
+            count[c + 1] += count[c];
+        }
+        let mut fill = count.clone();
+        let mut items = vec![0u32; targets.len()];
+        for (&t, &c) in targets.iter().zip(&ids) {
+            items[fill[c] as usize] = t;
+            fill[c] += 1;
+        }
+        grid.offsets = count;
+        grid.items = items;
+        grid
+    }
+
+    fn cell_of(&self, p: &Point3<f64>) -> [i64; 3] {
+        let d = (p - self.min) / self.cell;
+        [
+            (d.x.floor() as i64).clamp(0, self.res[0] as i64 - 1),
+            (d.y.floor() as i64).clamp(0, self.res[1] as i64 - 1),
+            (d.z.floor() as i64).clamp(0, self.res[2] as i64 - 1),
+        ]
+    }
+
+    fn cell_index(&self, c: &[i64; 3]) -> usize {
+        (c[0] as usize) + self.res[0] * ((c[1] as usize) + self.res[1] * (c[2] as usize))
+    }
+
+    /// Nearest target to `p` by expanding shells of cells.
+    fn nearest(&self, positions: &[Point3<f64>], p: &Point3<f64>) -> u32 {
+        let c = self.cell_of(p);
+        // Distance from p to the grid box bounds how far the first shells are.
+        let mut best = (f64::INFINITY, u32::MAX);
+        let max_r = self.res.iter().copied().max().unwrap_or(1) as i64;
+        for r in 0..=max_r {
+            // Any point in shell r is at least (r - 1) cells away from p's clamped cell.
+            if best.1 != u32::MAX {
+                let lower = ((r - 1).max(0) as f64) * self.cell;
+                if lower * lower > best.0 {
+                    break;
+                }
+            }
+            for dz in -r..=r {
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        if dx.abs().max(dy.abs()).max(dz.abs()) != r {
+                            continue;
+                        }
+                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
+                        if q.iter()
+                            .zip(&self.res)
+                            .any(|(&x, &n)| x < 0 || x >= n as i64)
+                        {
+                            continue;
+                        }
+                        let ci = self.cell_index(&q);
+                        for &t in
+                            &self.items[self.offsets[ci] as usize..self.offsets[ci + 1] as usize]
+                        {
+                            let d = (positions[t as usize] - p).norm_squared();
+                            if d < best.0 || (d == best.0 && t < best.1) {
+                                best = (d, t);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        best.1
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::test_meshes::grid;
+
+    #[test]
+    fn weights_interpolate_markers_and_sum_to_one() {
+        let mesh = grid(10, 1.0);
+        let markers = [12u32, 18, 60, 100, 104, 56];
+        let w = NaturalNeighborWeights::build(&mesh, &|_| true, &markers).unwrap();
+        for v in 0..mesh.vertex_count() {
+            let s: f64 = w.of(v).iter().map(|e| e.1).sum();
+            assert!((s - 1.0).abs() < 1e-9, "vertex {v}: {s}");
+            assert!(w.of(v).iter().all(|e| e.1 > 0.0));
+        }
+        for (m, &v) in markers.iter().enumerate() {
+            assert_eq!(w.of(v as usize), &[(m as u32, 1.0)]);
+        }
+        // Linear precision of Sibson coordinates: reproduces the UV of interior vertices.
+        for v in 0..mesh.vertex_count() {
+            let uv = w.uv[v];
+            let rec = w
+                .of(v)
+                .iter()
+                .fold(Point2::origin(), |acc: Point2<f64>, &(m, l)| {
+                    acc + w.marker_uv[m as usize].coords * l
+                });
+            if w.of(v).len() >= 3 {
+                assert!((rec - uv).norm() < 1e-9, "vertex {v}");
+            }
+        }
+        // Vertex 0 is outside the hull: it takes the hull edge's weights.
+        assert!(w.of(0).len() <= 2);
+    }
+
+    #[test]
+    fn missing_marker_neighbors_take_its_area() {
+        let mesh = grid(10, 1.0);
+        let markers = [12u32, 18, 60, 100, 104, 56];
+        let w = NaturalNeighborWeights::build(&mesh, &|_| true, &markers).unwrap();
+        let present = [true, true, false, true, true, true];
+        let support = w.support(markers.len());
+        let verts: Vec<u32> = support[2].iter().map(|e| e.0).collect();
+        let new = w.recompute(&present, &verts).unwrap();
+        for ws in &new {
+            assert!(ws.iter().all(|e| e.0 != 2));
+            assert!((ws.iter().map(|e| e.1).sum::<f64>() - 1.0).abs() < 1e-9);
+        }
+        // A vertex without weight on marker 2 keeps its weights.
+        let all: Vec<u32> = (0..mesh.vertex_count() as u32).collect();
+        let full = w.recompute(&present, &all).unwrap();
+        for (v, fv) in full.iter().enumerate() {
+            if w.of(v).iter().all(|e| e.0 != 2) {
+                let get =
+                    |ws: &[(u32, f64)], m: u32| ws.iter().find(|e| e.0 == m).map_or(0.0, |e| e.1);
+                for m in 0..markers.len() as u32 {
+                    let (a, b) = (get(w.of(v), m), get(fv, m));
+                    assert!(
+                        (a - b).abs() < 1e-9,
+                        "vertex {v} marker {m}: {a} became {b}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn non_face_vertices_copy_their_nearest() {
+        let mesh = grid(6, 1.0);
+        let markers = [8u32, 12, 36, 40];
+        let w = NaturalNeighborWeights::build(&mesh, &|v| v % 7 < 5, &markers).unwrap();
+        assert_eq!(w.source[5], 4);
+        assert_eq!(w.of(5), w.of(4));
+        assert!(
+            NaturalNeighborWeights::build(&mesh, &|_| true, &[8, 8]).is_err(),
+            "shared UV must be rejected"
+        );
+    }
+}

@@ -1,0 +1,437 @@
+//! Choosing one marker's local geometry for a frame (Cong et al. 2019 §4 and §5.1).
+//!
+//! 1. **Inside**: every tetrahedron containing the bundle gives a candidate with the
+//!    bundle's convex barycentric weights, Eq. (1).
+//! 2. **Outside every tetrahedron**: the bundle is projected onto the convex hull of the
+//!    point cloud (the union of all four-point tetrahedra), and the candidates are the
+//!    tetrahedra at the projected point ("one could consider not only the distance from
+//!    the bundle under consideration to the resulting surface, but also the distances that
+//!    neighboring bundles would be from the resulting surface"). When pruning left the
+//!    hull point in no tetrahedron, the closest point over the kept tetrahedra is searched
+//!    through the grid.
+//! 3. **Scoring**: a candidate's cost is the root-mean-square distance from the present
+//!    neighbouring bundles to the candidate's surface at their markers (plus, outside, the
+//!    bundle's own projection distance), plus `temporal_weight_mm` times the fraction of its
+//!    corners not shared with the previous frame's choice ("higher priority to tetrahedra
+//!    which share more points ... with the tetrahedron used on the previous frame").
+//!    Exact ties go to the least-deforming shapes (a `1e-6` weight on the candidate's
+//!    deformation, far below any neighbour distance that matters).
+
+use nalgebra::{Point3, Vector3};
+
+use super::barycentric::{TripleTable, closest_on_simplex, combine, tet_barycentric};
+use super::index::MarkerIndex;
+
+/// Weight of the deformation tie-break, per millimetre of patch deformation.
+const TIE_BREAK: f64 = 1e-6;
+/// Smallest barycentric weight still counted as inside in `f64`.
+const INSIDE_SLACK: f64 = -1e-9;
+/// Containment slack for a point on the hull (it lies on a face: one weight is ~0).
+const HULL_SLACK: f64 = -1e-7;
+/// Projections this close to the closest one tie, and the neighbour criterion decides, mm.
+const PROJECTION_TIE_MM: f64 = 1e-6;
+
+/// The local geometry chosen for a marker in a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Choice {
+    /// Point indices of the simplex corners (corners past the simplex's dimension repeat
+    /// corner 0 with weight 0).
+    pub corners: [u16; 4],
+    /// Variant chosen at each corner (index into the marker's variants).
+    pub variants: [u32; 4],
+    /// Convex weights of the corners.
+    pub weights: [f64; 4],
+    /// Whether the bundle lies in the chosen tetrahedron (else it was projected).
+    pub inside: bool,
+    /// The bundle minus the candidate's marker position (zero inside), mm.
+    pub residual: Vector3<f64>,
+    /// The candidate's cost (see the module docs), mm.
+    pub cost_mm: f64,
+}
+
+/// Per-frame scratch memory for [`choose`], reused across markers and frames.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    stamp: Vec<u32>,
+    epoch: u32,
+    found: Vec<(u32, [f64; 4], f64)>,
+    /// Neighbour errors of each point's representative: `points × present neighbours`.
+    err: Vec<Vector3<f64>>,
+    /// Gram matrix of `err` over the present neighbours, `points × points`.
+    gram: Vec<f64>,
+    /// Variant representing each point in this frame.
+    rep: Vec<u32>,
+    /// Orientations of the query against every triple of points.
+    table: TripleTable,
+    /// Tetrahedra containing (or near) the query, with its barycentric coordinates and
+    /// distance bound.
+    hits: Vec<(u32, [f64; 4], f64)>,
+}
+
+/// Selection settings (from [`super::LgiParams`]).
+#[derive(Debug, Clone, Copy)]
+pub struct SelectParams {
+    /// Temporal preference per unshared corner fraction, mm.
+    pub temporal_weight_mm: f64,
+    /// Tetrahedra within this distance of the bundle compete too, mm (noisy bundles).
+    pub bundle_tolerance_mm: f64,
+}
+
+/// Chooses the local geometry of marker `mi` for the (unskinned) bundle `x`.
+///
+/// `neighbors[k]` is the bundle of `mi.neighbors[k]` in this frame (`None` when missing);
+/// `previous` the corners chosen for this marker in the previous frame.
+///
+/// The neighbour cost of convex weights `w` over points is the quadratic form
+/// `wᵀ G w`, `G_ab = mean_k (q_ak − y_k)·(q_bk − y_k)` with `q_ak` neighbour `k`'s position
+/// in point `a`'s shape and `y_k` its bundle, so `G` is formed once per marker and frame and
+/// each candidate costs a handful of operations.
+pub fn choose(
+    mi: &MarkerIndex,
+    x: &Point3<f64>,
+    neighbors: &[Option<Point3<f64>>],
+    previous: Option<&[u16; 4]>,
+    params: &SelectParams,
+    scratch: &mut Scratch,
+) -> Choice {
+    let dim = mi.simplices.dim as usize;
+    let nk = mi.neighbors.len();
+    let np = mi.points.len();
+    // Neighbour errors of each point's representative variant, then their Gram matrix.
+    let present: Vec<usize> = (0..nk).filter(|&k| neighbors[k].is_some()).collect();
+    let npk = present.len();
+    // Each point is represented by its variant that best predicts the neighbours alone.
+    scratch.rep.clear();
+    for j in 0..np {
+        let (lo, hi) = (mi.point_variants[j], mi.point_variants[j + 1]);
+        let mut best = (f64::INFINITY, lo);
+        if hi - lo > 1 && npk > 0 {
+            for u in lo..hi {
+                let e: f64 = present
+                    .iter()
+                    .filter_map(|&k| {
+                        neighbors[k].map(|y| {
+                            (mi.neighbor_positions[u as usize * nk + k] - y).norm_squared()
+                        })
+                    })
+                    .sum::<f64>()
+                    .sqrt()
+                    + TIE_BREAK * mi.deformation_mm[u as usize];
+                if e < best.0 {
+                    best = (e, u);
+                }
+            }
+        }
+        scratch.rep.push(best.1);
+    }
+    scratch.err.clear();
+    for j in 0..np {
+        let rep = scratch.rep[j] as usize;
+        for &k in &present {
+            if let Some(y) = neighbors[k] {
+                scratch.err.push(mi.neighbor_positions[rep * nk + k] - y);
+            }
+        }
+    }
+    scratch.gram.clear();
+    scratch.gram.resize(np * np, 0.0);
+    if npk > 0 {
+        let inv = 1.0 / npk as f64;
+        for a in 0..np {
+            let ea = &scratch.err[a * npk..(a + 1) * npk];
+            for b in a..np {
+                let eb = &scratch.err[b * npk..(b + 1) * npk];
+                let g = ea.iter().zip(eb).map(|(u, v)| u.dot(v)).sum::<f64>() * inv;
+                scratch.gram[a * np + b] = g;
+                scratch.gram[b * np + a] = g;
+            }
+        }
+    }
+    let gram = &scratch.gram;
+    let rep = &scratch.rep;
+    let score = |corners: &[u16; 4], w: &[f64; 4], self_d2: f64| -> f64 {
+        let mut q = 0.0;
+        for a in 0..=dim {
+            let ra = corners[a] as usize * np;
+            for b in 0..=dim {
+                q += w[a] * w[b] * gram[ra + corners[b] as usize];
+            }
+        }
+        let mut cost = (q.max(0.0) + self_d2).sqrt();
+        if let Some(prev) = previous {
+            let shared = corners[..=dim]
+                .iter()
+                .filter(|c| prev[..=dim].contains(c))
+                .count();
+            cost += params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64;
+        }
+        let deform: f64 = (0..=dim)
+            .map(|c| w[c] * mi.deformation_mm[rep[corners[c] as usize] as usize])
+            .sum();
+        cost + TIE_BREAK * deform
+    };
+
+    let mut best: Option<([u16; 4], [f64; 4], bool, f64)> = None;
+    let consider = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
+                    corners: [u16; 4],
+                    w: [f64; 4],
+                    inside: bool,
+                    self_d2: f64| {
+        let cost = score(&corners, &w, self_d2);
+        if best.as_ref().is_none_or(|b| cost < b.3) {
+            *best = Some((corners, w, inside, cost));
+        }
+    };
+
+    if let Some(grid) = &mi.grid {
+        // 1. Tetrahedra containing the bundle (or near it, with a tolerance). Candidate
+        //    list: the grid cell's when it is short, else every tetrahedron (the
+        //    all-combination tetrahedra overlap so much that a cell often lists most of
+        //    them). The winner's weights are recomputed exactly below.
+        let mut hits = std::mem::take(&mut scratch.hits);
+        let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
+                    table: &mut TripleTable,
+                    hits: &mut Vec<(u32, [f64; 4], f64)>,
+                    y: &Point3<f64>,
+                    inside: bool,
+                    self_d2: f64,
+                    tol: f64| {
+            table.fill_used(&mi.points, y, &mi.used_triples);
+            hits.clear();
+            collect_containing(mi, grid, table, y, inside, tol, hits);
+            for &(t, mut w, d) in hits.iter() {
+                clamp_convex(&mut w);
+                consider(
+                    best,
+                    mi.simplices.corners[t as usize],
+                    w,
+                    inside,
+                    self_d2 + d * d,
+                );
+            }
+        };
+        let mut table = std::mem::take(&mut scratch.table);
+        scan(
+            &mut best,
+            &mut table,
+            &mut hits,
+            x,
+            true,
+            0.0,
+            params.bundle_tolerance_mm,
+        );
+        if best.is_none() {
+            // 2. Outside: project onto the cloud's convex hull (the union of all
+            //    four-point tetrahedra) and choose among the tetrahedra at that point.
+            if let Some((q, h)) = super::hull::closest_on_hull(&mi.points, &mi.hull, x) {
+                let d2 = (q - x).norm_squared();
+                // First the tetrahedra on that hull triangle, then (pruned there) any.
+                table.fill_used(&mi.points, &q, &mi.used_triples);
+                for &t in &mi.hull_tets[h] {
+                    let t = t as usize;
+                    if let Some(mut w) = table.inside(&mi.faces[t], mi.inv_volume[t], HULL_SLACK) {
+                        clamp_convex(&mut w);
+                        consider(&mut best, mi.simplices.corners[t], w, false, d2);
+                    }
+                }
+                if best.is_none() {
+                    scan(&mut best, &mut table, &mut hits, &q, false, d2, 0.0);
+                }
+            }
+        }
+        scratch.table = table;
+        scratch.hits = hits;
+        // The winner's exact weights: its barycentric coordinates of the bundle when it
+        // contains it, else the closest point of the tetrahedron (a pre-test false
+        // positive, or a projection).
+        if let Some(b) = &mut best {
+            let p = mi.corners_of(&b.0);
+            match tet_barycentric(&p, x) {
+                Some(mut w) if w.iter().all(|&v| v >= INSIDE_SLACK) => {
+                    clamp_convex(&mut w);
+                    b.1 = w;
+                    b.2 = true;
+                }
+                _ => {
+                    b.1 = closest_on_simplex(&p, x);
+                    b.2 = false;
+                }
+            }
+        }
+        if best.is_none() {
+            // 3. The hull point lies in no kept tetrahedron (thin ones were pruned at the
+            //    hull): the closest point over the tetrahedra, via the grid's shells.
+            let n = mi.simplices.corners.len();
+            if scratch.stamp.len() < n {
+                scratch.stamp.resize(n, 0);
+            }
+            scratch.epoch = scratch.epoch.wrapping_add(1);
+            if scratch.epoch == 0 {
+                scratch.stamp.iter_mut().for_each(|s| *s = 0);
+                scratch.epoch = 1;
+            }
+            let epoch = scratch.epoch;
+            scratch.found.clear();
+            let mut dmin = f64::INFINITY;
+            let stamp = &mut scratch.stamp;
+            let found = &mut scratch.found;
+            grid.visit_shells(x, |_, list| {
+                for &t in list {
+                    if stamp[t as usize] == epoch {
+                        continue;
+                    }
+                    stamp[t as usize] = epoch;
+                    let p = mi.corners(t as usize);
+                    let w = closest_on_simplex(&p, x);
+                    let d = (combine(&p, &w) - x).norm();
+                    if d <= dmin + PROJECTION_TIE_MM {
+                        found.push((t, w, d));
+                        dmin = dmin.min(d);
+                    }
+                }
+                let b = dmin + PROJECTION_TIE_MM;
+                b * b
+            });
+            for &(t, w, d) in scratch.found.iter() {
+                if d <= dmin + PROJECTION_TIE_MM {
+                    consider(&mut best, mi.simplices.corners[t as usize], w, false, d * d);
+                }
+            }
+        }
+    } else {
+        // Lower-dimensional marker: always a projection, over every simplex.
+        let mut cands: Vec<([u16; 4], [f64; 4], f64)> = Vec::new();
+        let mut dmin = f64::INFINITY;
+        for c in &mi.simplices.corners {
+            let p: Vec<Point3<f64>> = c[..=dim].iter().map(|&k| mi.points[k as usize]).collect();
+            let w = closest_on_simplex(&p, x);
+            let d = (combine(&p, &w) - x).norm();
+            dmin = dmin.min(d);
+            cands.push((*c, w, d));
+        }
+        for (c, w, d) in cands {
+            if d <= dmin + PROJECTION_TIE_MM {
+                consider(&mut best, c, w, false, d * d);
+            }
+        }
+    }
+    let (corners, weights, inside, cost_mm) =
+        best.unwrap_or(([0; 4], [1.0, 0.0, 0.0, 0.0], false, f64::INFINITY));
+    let variants = refine_variants(mi, &corners, &weights, dim, neighbors, &scratch.rep);
+    let mut at = Vector3::zeros();
+    for c in 0..=dim {
+        at += mi.variant_position[variants[c] as usize].coords * weights[c];
+    }
+    Choice {
+        corners,
+        variants,
+        weights,
+        inside,
+        residual: x.coords - at,
+        cost_mm,
+    }
+}
+
+/// Picks, corner by corner, the variant of each point whose shape best predicts the
+/// present neighbours given the other corners (one pass of coordinate descent on the
+/// neighbour cost; ties to the least deforming variant).
+fn refine_variants(
+    mi: &MarkerIndex,
+    corners: &[u16; 4],
+    weights: &[f64; 4],
+    dim: usize,
+    neighbors: &[Option<Point3<f64>>],
+    rep: &[u32],
+) -> [u32; 4] {
+    let nk = mi.neighbors.len();
+    let mut var = [0u32; 4];
+    for c in 0..4 {
+        var[c] = rep[corners[c] as usize];
+    }
+    let has_choice = (0..=dim).any(|c| {
+        let j = corners[c] as usize;
+        mi.point_variants[j + 1] - mi.point_variants[j] > 1 && weights[c] > 0.0
+    });
+    if !has_choice || neighbors.iter().all(Option::is_none) {
+        return var;
+    }
+    for c in 0..=dim {
+        let j = corners[c] as usize;
+        let (lo, hi) = (mi.point_variants[j], mi.point_variants[j + 1]);
+        if hi - lo <= 1 || weights[c] <= 0.0 {
+            continue;
+        }
+        let mut best = (f64::INFINITY, var[c]);
+        for u in lo..hi {
+            let mut cost = 0.0;
+            for (k, y) in neighbors.iter().enumerate() {
+                let Some(y) = y else { continue };
+                let mut pred = Vector3::zeros();
+                for c2 in 0..=dim {
+                    let v = if c2 == c { u } else { var[c2] } as usize;
+                    pred += mi.neighbor_positions[v * nk + k].coords * weights[c2];
+                }
+                cost += (pred - y.coords).norm_squared();
+            }
+            let cost = cost.sqrt() + TIE_BREAK * mi.deformation_mm[u as usize];
+            if cost < best.0 {
+                best = (cost, u);
+            }
+        }
+        var[c] = best.1;
+    }
+    var
+}
+
+/// Appends to `hits` the tetrahedra of `mi` containing the point `y` whose orientations
+/// `table` holds, with its barycentric coordinates and distance (0); with `tol_mm > 0`
+/// also those within about `tol_mm` of it (distance bound from the face planes). Scans the
+/// grid cell of `y` when it lists less than half the tetrahedra, else every tetrahedron;
+/// nothing when `y` is outside the grid box, `strict` and `tol_mm == 0`.
+fn collect_containing(
+    mi: &MarkerIndex,
+    grid: &super::grid::TetGrid,
+    table: &TripleTable,
+    y: &Point3<f64>,
+    strict: bool,
+    tol_mm: f64,
+    hits: &mut Vec<(u32, [f64; 4], f64)>,
+) {
+    let all = mi.faces.len();
+    if tol_mm > 0.0 {
+        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
+            if let Some((w, d)) = table.near(f, iv, &mi.triple_inv_area2, tol_mm) {
+                hits.push((t as u32, w, d));
+            }
+        }
+        return;
+    }
+    let cell = grid.candidates(y);
+    if cell.len() * 2 < all {
+        for &t in cell {
+            let t = t as usize;
+            if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
+                hits.push((t as u32, w, 0.0));
+            }
+        }
+    } else if grid.contains(y) || !strict {
+        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
+            if let Some(w) = table.inside(f, iv, INSIDE_SLACK) {
+                hits.push((t as u32, w, 0.0));
+            }
+        }
+    }
+}
+
+/// Clamps tiny negative weights to zero and renormalizes to sum 1.
+fn clamp_convex(w: &mut [f64; 4]) {
+    for v in w.iter_mut() {
+        *v = v.max(0.0);
+    }
+    let s: f64 = w.iter().sum();
+    if s > 0.0 {
+        for v in w.iter_mut() {
+            *v /= s;
+        }
+    }
+}

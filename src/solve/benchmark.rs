@@ -1,0 +1,499 @@
+//! Accuracy and speed benchmark of the solve methods on held-out performances: frames that
+//! are not in the dataset (Cong et al. 2019 §7 "High-Resolution Capture Comparison" and
+//! "Comparison to Other Approaches", made quantitative).
+//!
+//! # Datasets
+//! - ICT-FaceKit: **all 53 expressions**; **+ in-betweens** (each at half weight);
+//!   **+ pairs** (in-betweens and the 80 pairs of expressions whose displacement fields
+//!   overlap most, the combinations a capture session would add); **symmetric only**
+//!   (each `_L`/`_R` pair merged into one shape, as a FACS session delivers, while the
+//!   performance stays asymmetric).
+//! - The built-in actor: its 36 expressions as the dataset, performances from its
+//!   nonlinear model (correctives, wrinkles, lids, skinned jaw).
+//!
+//! # Performances (seeded, reproducible)
+//! Random combinations of 2–4 expressions with weights in [0.3, 1] (ICT: linear in its
+//! shapes; the actor: its true nonlinear model), and a smooth animated sequence (keys of
+//! 2–4 expressions every 15 frames, eased in between).
+//!
+//! # Conditions
+//! Exact bundles; Gaussian noise of σ = 0.3 mm and 1 mm per coordinate; 10 % of the markers
+//! missing (different ones each frame); the animated sequence, whose temporal jitter is the
+//! mean vertex acceleration relative to the ground truth's.
+//!
+//! # Metrics
+//! Mean and 95th-percentile vertex error over the face vertices, mean error at the present
+//! markers, mean time per frame (one thread), and the build time of each method.
+
+use std::time::Instant;
+
+use nalgebra::{Point3, Vector3};
+
+use super::{Method, SolveParams, Solver};
+use crate::bundles::FrameBundles;
+use crate::dataset::{Dataset, MarkerLayout, Shape};
+use crate::lgi::{LgiParams, TemporalParams};
+
+/// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// A generator from a seed.
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform integer in `0..n` (`n > 0`).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.uniform() * n as f64) as usize % n.max(1)
+    }
+    /// Standard normal (Box–Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+/// Produces the ground-truth face (#V positions) of expression weights.
+pub type Evaluate<'a> = dyn Fn(&[f64]) -> Vec<Point3<f64>> + 'a;
+
+/// Random weights: 2–4 of `n` expressions at [0.3, 1].
+pub fn random_weights(rng: &mut Rng, n: usize) -> Vec<f64> {
+    let mut w = vec![0.0; n];
+    let k = 2 + rng.below(3);
+    let mut chosen = 0;
+    while chosen < k.min(n) {
+        let i = rng.below(n);
+        if w[i] == 0.0 {
+            w[i] = 0.3 + 0.7 * rng.uniform();
+            chosen += 1;
+        }
+    }
+    w
+}
+
+/// A smooth animated sequence of `frames` weight vectors: random keys every `every`
+/// frames, eased (smoothstep) in between.
+pub fn animated_weights(rng: &mut Rng, n: usize, frames: usize, every: usize) -> Vec<Vec<f64>> {
+    let keys: Vec<Vec<f64>> = (0..frames / every + 2)
+        .map(|k| {
+            if k == 0 {
+                vec![0.0; n]
+            } else {
+                random_weights(rng, n)
+            }
+        })
+        .collect();
+    (0..frames)
+        .map(|f| {
+            let k = f / every;
+            let t = (f % every) as f64 / every as f64;
+            let s = t * t * (3.0 - 2.0 * t);
+            keys[k]
+                .iter()
+                .zip(&keys[k + 1])
+                .map(|(a, b)| a + (b - a) * s)
+                .collect()
+        })
+        .collect()
+}
+
+/// The linear evaluation `x₀ + Σ w_n b_n` over `shapes`.
+pub fn linear_face(neutral: &[Point3<f64>], shapes: &[Shape], w: &[f64]) -> Vec<Point3<f64>> {
+    let mut out = neutral.to_vec();
+    for (s, &ws) in shapes.iter().zip(w) {
+        if ws == 0.0 {
+            continue;
+        }
+        for ((o, p), x) in out.iter_mut().zip(&s.positions).zip(neutral) {
+            *o += (p - x) * ws;
+        }
+    }
+    out
+}
+
+/// The `count` pairs of shapes whose displacement fields overlap most (absolute cosine over
+/// the face vertices): the combinations a capture session would add.
+pub fn overlapping_pairs(base: &Dataset, count: usize) -> Vec<(usize, usize)> {
+    let x0 = &base.neutral.positions;
+    let face: Vec<usize> = base.face_vertex_indices().collect();
+    let d: Vec<Vec<Vector3<f64>>> = base
+        .shapes
+        .iter()
+        .map(|s| face.iter().map(|&v| s.positions[v] - x0[v]).collect())
+        .collect();
+    let norm: Vec<f64> = d
+        .iter()
+        .map(|x| x.iter().map(|v| v.norm_squared()).sum::<f64>().sqrt())
+        .collect();
+    let mut pairs = Vec::new();
+    for i in 0..d.len() {
+        for j in i + 1..d.len() {
+            let dot: f64 = d[i].iter().zip(&d[j]).map(|(a, b)| a.dot(b)).sum();
+            pairs.push((dot.abs() / (norm[i] * norm[j]).max(1e-12), i, j));
+        }
+    }
+    pairs.sort_by(|a, b| b.0.total_cmp(&a.0));
+    pairs
+        .into_iter()
+        .take(count)
+        .map(|(_, i, j)| (i, j))
+        .collect()
+}
+
+/// ICT dataset variants of the benchmark, from the 53-expression dataset.
+pub fn ict_variants(base: &Dataset) -> Vec<(String, Dataset)> {
+    let x0 = &base.neutral.positions;
+    let make = |name: &str, w: &[(usize, f64)]| -> Shape {
+        let mut pos = x0.clone();
+        for &(i, wi) in w {
+            for ((o, p), x) in pos.iter_mut().zip(&base.shapes[i].positions).zip(x0) {
+                *o += (p - x) * wi;
+            }
+        }
+        Shape {
+            name: name.to_string(),
+            positions: pos,
+            jaw: None,
+        }
+    };
+    let with = |name: &str, extra: Vec<Shape>| -> (String, Dataset) {
+        let mut ds = base.clone();
+        ds.name = name.to_string();
+        ds.shapes.extend(extra);
+        (name.to_string(), ds)
+    };
+    let halves: Vec<Shape> = base
+        .shapes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| make(&format!("{}_half", s.name), &[(i, 0.5)]))
+        .collect();
+    let pair_shapes: Vec<Shape> = overlapping_pairs(base, 80)
+        .into_iter()
+        .map(|(i, j)| {
+            make(
+                &format!("{}+{}", base.shapes[i].name, base.shapes[j].name),
+                &[(i, 1.0), (j, 1.0)],
+            )
+        })
+        .collect();
+    // Symmetric: merge _L/_R pairs.
+    let mut sym = base.clone();
+    sym.name = "symmetric".into();
+    sym.shapes.clear();
+    for (i, s) in base.shapes.iter().enumerate() {
+        if let Some(stem) = s.name.strip_suffix("_L") {
+            if let Some(j) = base.shape_index(&format!("{stem}_R")) {
+                sym.shapes.push(make(stem, &[(i, 1.0), (j, 1.0)]));
+                continue;
+            }
+        } else if let Some(stem) = s.name.strip_suffix("_R")
+            && base.shape_index(&format!("{stem}_L")).is_some()
+        {
+            continue;
+        }
+        sym.shapes.push(s.clone());
+    }
+    let mut all = base.clone();
+    all.name = "all".into();
+    let inb = halves.clone();
+    let mut pr = halves;
+    pr.extend(pair_shapes);
+    vec![
+        ("all 53".to_string(), all),
+        with("+ in-betweens", inb),
+        with("+ pairs", pr),
+        ("symmetric only".to_string(), sym),
+    ]
+}
+
+/// One line of the results table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Row {
+    /// Dataset variant.
+    pub dataset: String,
+    /// Condition (exact, noise, missing, animated).
+    pub condition: String,
+    /// Method (with its variant, e.g. `lgi+smooth`).
+    pub method: String,
+    /// Mean vertex error over the face vertices, mm.
+    pub mean_mm: f64,
+    /// 95th percentile vertex error, mm.
+    pub p95_mm: f64,
+    /// Mean error at the present markers, mm.
+    pub marker_mm: f64,
+    /// Mean time per frame, ms.
+    pub ms_per_frame: f64,
+    /// Build (precomputation) time, s.
+    pub build_s: f64,
+    /// Animated sequences: mean vertex acceleration relative to the ground truth's.
+    pub accel_ratio: Option<f64>,
+}
+
+/// Formats rows as a Markdown table.
+pub fn format_table(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "| dataset | condition | method | mean mm | p95 mm | marker mm | ms/frame | build s | accel ratio |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {} |\n",
+            r.dataset,
+            r.condition,
+            r.method,
+            r.mean_mm,
+            r.p95_mm,
+            r.marker_mm,
+            r.ms_per_frame,
+            r.build_s,
+            r.accel_ratio.map_or("".into(), |a| format!("{a:.2}"))
+        ));
+    }
+    s
+}
+
+/// A set of test frames: ground truth and bundles.
+pub struct Take {
+    /// Condition name.
+    pub condition: String,
+    /// Ground-truth positions per frame.
+    pub truth: Vec<Vec<Point3<f64>>>,
+    /// Bundles per frame.
+    pub bundles: Vec<FrameBundles>,
+    /// Whether the frames form one animated sequence.
+    pub animated: bool,
+}
+
+/// Builds the benchmark takes of a performance: `static_truth` frames under exact, noisy
+/// and missing conditions, and the animated `anim_truth` with exact bundles.
+pub fn takes(
+    layout: &MarkerLayout,
+    static_truth: &[Vec<Point3<f64>>],
+    anim_truth: &[Vec<Point3<f64>>],
+    seed: u64,
+) -> Vec<Take> {
+    let mut rng = Rng::new(seed);
+    let sample = |truth: &[Vec<Point3<f64>>], rng: &mut Rng, sigma: f64, missing: f64| {
+        truth
+            .iter()
+            .enumerate()
+            .map(|(f, t)| FrameBundles {
+                frame: f as u64,
+                positions: layout
+                    .markers
+                    .iter()
+                    .map(|m| {
+                        let p = t[m.vertex as usize];
+                        if missing > 0.0 && rng.uniform() < missing {
+                            return None;
+                        }
+                        Some(if sigma > 0.0 {
+                            p + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma
+                        } else {
+                            p
+                        })
+                    })
+                    .collect(),
+            })
+            .collect::<Vec<_>>()
+    };
+    let mut out = Vec::new();
+    for (name, sigma, missing) in [
+        ("exact", 0.0, 0.0),
+        ("noise 0.3 mm", 0.3, 0.0),
+        ("noise 1 mm", 1.0, 0.0),
+        ("10% missing", 0.0, 0.1),
+    ] {
+        out.push(Take {
+            condition: name.to_string(),
+            truth: static_truth.to_vec(),
+            bundles: sample(static_truth, &mut rng, sigma, missing),
+            animated: false,
+        });
+    }
+    if !anim_truth.is_empty() {
+        out.push(Take {
+            condition: format!("animated {} frames", anim_truth.len()),
+            truth: anim_truth.to_vec(),
+            bundles: sample(anim_truth, &mut rng, 0.0, 0.0),
+            animated: true,
+        });
+    }
+    out
+}
+
+/// Errors of `solved` against `truth` over the face vertices: per-vertex errors appended
+/// to `all`, and the marker error summed into `marker` with its count.
+fn accumulate(
+    dataset: &Dataset,
+    layout: &MarkerLayout,
+    bundles: &FrameBundles,
+    solved: &[Point3<f64>],
+    truth: &[Point3<f64>],
+    all: &mut Vec<f64>,
+    marker: &mut (f64, usize),
+) {
+    for v in dataset.face_vertex_indices() {
+        all.push((solved[v] - truth[v]).norm());
+    }
+    for (m, p) in layout.markers.iter().zip(&bundles.positions) {
+        if p.is_some() {
+            let v = m.vertex as usize;
+            marker.0 += (solved[v] - truth[v]).norm();
+            marker.1 += 1;
+        }
+    }
+}
+
+/// Mean vertex acceleration (second difference) over the face vertices of a sequence.
+pub fn mean_acceleration(dataset: &Dataset, seq: &[Vec<Point3<f64>>]) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for t in 1..seq.len().saturating_sub(1) {
+        for v in dataset.face_vertex_indices() {
+            let a = seq[t + 1][v].coords - 2.0 * seq[t][v].coords + seq[t - 1][v].coords;
+            sum += a.norm();
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f64
+}
+
+/// Runs every method on every take of one dataset variant.
+///
+/// `smoothing` is the LGI temporal smoothing reported as `lgi+smooth` on animated takes.
+///
+/// # Errors
+/// A message naming the method and frame that failed.
+pub fn run_dataset(
+    name: &str,
+    dataset: &Dataset,
+    layout: &MarkerLayout,
+    params: &SolveParams,
+    takes: &[Take],
+    smoothing: TemporalParams,
+) -> Result<Vec<Row>, String> {
+    let mut rows = Vec::new();
+    let methods: Vec<Method> = match std::env::var("HELMCAP_BENCH_METHODS") {
+        Ok(v) => v.split(',').filter_map(|m| m.trim().parse().ok()).collect(),
+        Err(_) => Method::ALL.to_vec(),
+    };
+    for method in methods {
+        let t0 = Instant::now();
+        let mut solver = Solver::new(method, dataset, layout, params)
+            .map_err(|e| format!("{name}: building {}: {e}", method.name()))?;
+        let build_s = t0.elapsed().as_secs_f64();
+        if let Solver::Lgi(s) = &solver {
+            eprintln!("{name}: {}", s.index().stats);
+        }
+        for take in takes {
+            // LGI variants over the same index: temporal smoothing on the animated take, the
+            // noisy-input preset on noisy takes.
+            let mut variants: Vec<(String, Option<LgiParams>)> =
+                vec![(method.name().to_string(), None)];
+            if method == Method::Lgi {
+                if take.animated && smoothing.is_enabled() {
+                    let p = LgiParams {
+                        smoothing,
+                        ..params.lgi
+                    };
+                    variants.push(("lgi+smooth".to_string(), Some(p)));
+                }
+                if take.condition.starts_with("noise") {
+                    let p = LgiParams {
+                        smoothing: params.lgi.smoothing,
+                        ..LgiParams::noisy()
+                    };
+                    variants.push(("lgi, noisy preset".to_string(), Some(p)));
+                }
+            }
+            for (label, lgi_params) in variants {
+                solver.reset();
+                let t = Instant::now();
+                let solved: Vec<Vec<Point3<f64>>> =
+                    match (&mut solver, lgi_params) {
+                        (Solver::Lgi(s), Some(p)) => {
+                            let mut s2 = crate::lgi::LgiSolver::from_index(s.index().clone(), &p)
+                                .map_err(|e| e.to_string())?;
+                            if take.animated {
+                                s2.solve_sequence(&take.bundles)
+                                    .map_err(|e| e.to_string())?
+                            } else {
+                                let mut out = Vec::with_capacity(take.bundles.len());
+                                for b in &take.bundles {
+                                    s2.reset();
+                                    out.push(s2.solve(b).map_err(|e| e.to_string())?);
+                                }
+                                out
+                            }
+                        }
+                        (solver, _) => {
+                            let mut out = Vec::with_capacity(take.bundles.len());
+                            for b in &take.bundles {
+                                if !take.animated {
+                                    solver.reset();
+                                }
+                                out.push(solver.solve(b).map_err(|e| {
+                                    format!("{name}/{}/{label}: {e}", take.condition)
+                                })?);
+                            }
+                            out
+                        }
+                    };
+                let ms = t.elapsed().as_secs_f64() * 1e3 / take.bundles.len().max(1) as f64;
+                let mut all = Vec::new();
+                let mut marker = (0.0, 0usize);
+                for ((b, s), tr) in take.bundles.iter().zip(&solved).zip(&take.truth) {
+                    accumulate(dataset, layout, b, s, tr, &mut all, &mut marker);
+                }
+                let mean = all.iter().sum::<f64>() / all.len().max(1) as f64;
+                let k = ((all.len() as f64 * 0.95) as usize).min(all.len().saturating_sub(1));
+                let p95 = if all.is_empty() {
+                    0.0
+                } else {
+                    *all.select_nth_unstable_by(k, f64::total_cmp).1
+                };
+                let accel_ratio = take.animated.then(|| {
+                    mean_acceleration(dataset, &solved)
+                        / mean_acceleration(dataset, &take.truth).max(1e-12)
+                });
+                rows.push(Row {
+                    dataset: name.to_string(),
+                    condition: take.condition.clone(),
+                    method: label,
+                    mean_mm: mean,
+                    p95_mm: p95,
+                    marker_mm: marker.0 / marker.1.max(1) as f64,
+                    ms_per_frame: ms,
+                    build_s,
+                    accel_ratio,
+                });
+                if let Some(r) = rows.last() {
+                    eprintln!(
+                        "{}",
+                        format_table(std::slice::from_ref(r))
+                            .lines()
+                            .nth(2)
+                            .unwrap_or("")
+                    );
+                }
+            }
+        }
+    }
+    Ok(rows)
+}
