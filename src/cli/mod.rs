@@ -37,12 +37,12 @@ enum Command {
     /// Marker layouts.
     #[command(subcommand)]
     Markers(markers::MarkersCommand),
-    /// Reconstruct the dense face of every frame of a bundles CSV.
-    Solve(solve::SolveArgs),
     /// Add the database's actor-specific details to a mesh sequence (Bermano et al. 2014).
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Reconstruct the dense face of every frame of a bundles CSV.
+    Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -73,9 +73,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
-        Command::Solve(a) => solve::run(a),
         Command::Enhance(a) => enhance::run(a),
         Command::Retime(a) => retime::run(a),
+        Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
     }
