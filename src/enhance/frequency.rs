@@ -6,7 +6,7 @@ use nalgebra_sparse::{CooMatrix, CsrMatrix};
 
 use super::EnhanceError;
 use super::poisson::SpdFactor;
-use crate::mesh::{Mesh, cotangent_laplacian_of, triangle_areas, uniform_laplacian};
+use crate::mesh::{Mesh, cotangent_laplacian_of, uniform_laplacian};
 
 /// Tuning of the low-pass filter [`LowPass`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -103,17 +103,7 @@ impl LowPass {
     ) -> Result<Self, EnhanceError> {
         params.validate()?;
         let n = mesh.vertex_count();
-        if rest.len() != n {
-            return Err(EnhanceError::Shape {
-                what: "rest positions",
-                expected: n,
-                got: rest.len(),
-            });
-        }
-        let rest_mesh = mesh
-            .with_positions(rest.to_vec())
-            .map_err(EnhanceError::Mesh)?;
-        let areas = triangle_areas(&rest_mesh);
+        let areas = super::rest_triangle_areas(mesh, rest)?;
         let mut diag = vec![0.0; n];
         for (t, &a) in mesh.triangles.iter().zip(&areas) {
             for &v in t {

@@ -89,3 +89,32 @@ impl EnhanceError {
         Self::InvalidParam { field, value }
     }
 }
+
+/// Areas of `mesh`'s triangles at the rest positions `rest` (#V, mm), after checking that
+/// `rest` fits the mesh and is finite.
+///
+/// # Errors
+/// [`EnhanceError::Shape`] for a wrong length, [`EnhanceError::Mesh`] for a non-finite
+/// coordinate.
+fn rest_triangle_areas(
+    mesh: &crate::mesh::Mesh,
+    rest: &[nalgebra::Point3<f64>],
+) -> Result<Vec<f64>, EnhanceError> {
+    let n = mesh.vertex_count();
+    if rest.len() != n {
+        return Err(EnhanceError::Shape {
+            what: "rest positions",
+            expected: n,
+            got: rest.len(),
+        });
+    }
+    if let Some(v) = rest
+        .iter()
+        .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(EnhanceError::Mesh(MeshError::Invalid(format!(
+            "rest vertex {v} has a non-finite coordinate"
+        ))));
+    }
+    Ok(crate::mesh::triangle_areas_of(mesh, rest))
+}

@@ -9,7 +9,7 @@ use nalgebra::{Matrix3, Point3, Vector3};
 use nalgebra_sparse::CsrMatrix;
 
 use super::EnhanceError;
-use crate::mesh::{Mesh, boundary_loops, cotangent_laplacian_of, triangle_areas};
+use crate::mesh::{Mesh, boundary_loops, cotangent_laplacian_of};
 
 /// A sparse symmetric positive-definite matrix factored once by sparse Cholesky (`faer`),
 /// solved by back-substitution afterwards.
@@ -151,17 +151,7 @@ impl PoissonSolver {
     ) -> Result<Self, EnhanceError> {
         params.validate()?;
         let n = mesh.vertex_count();
-        if rest.len() != n {
-            return Err(EnhanceError::Shape {
-                what: "rest positions",
-                expected: n,
-                got: rest.len(),
-            });
-        }
-        let rest_mesh = mesh
-            .with_positions(rest.to_vec())
-            .map_err(EnhanceError::Mesh)?;
-        let areas = triangle_areas(&rest_mesh);
+        let areas = super::rest_triangle_areas(mesh, rest)?;
         let weighted_hat_gradients = mesh
             .triangles
             .iter()

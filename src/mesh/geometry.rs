@@ -18,9 +18,18 @@ pub fn triangle_normals(mesh: &Mesh) -> Vec<Vector3<f64>> {
 
 /// Area of each triangle of the triangulated view (#T), in squared mesh units.
 pub fn triangle_areas(mesh: &Mesh) -> Vec<f64> {
+    triangle_areas_of(mesh, &mesh.positions)
+}
+
+/// [`triangle_areas`] of `mesh`'s triangles placed at other `positions` (#V), e.g. a
+/// dataset shape that shares the neutral's topology.
+///
+/// # Panics
+/// If `positions` has fewer entries than a triangle index needs (a caller bug).
+pub fn triangle_areas_of(mesh: &Mesh, positions: &[Point3<f64>]) -> Vec<f64> {
     mesh.triangles
         .iter()
-        .map(|t| 0.5 * triangle_cross(&mesh.positions, t).norm())
+        .map(|t| 0.5 * triangle_cross(positions, t).norm())
         .collect()
 }
 

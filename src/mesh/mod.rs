@@ -22,7 +22,8 @@ use nalgebra::{Point2, Point3};
 
 pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
 pub use geometry::{
-    triangle_areas, triangle_normals, vertex_areas, vertex_normals, vertex_normals_of,
+    triangle_areas, triangle_areas_of, triangle_normals, vertex_areas, vertex_normals,
+    vertex_normals_of,
 };
 pub use laplacian::{
     MassKind, cotangent_laplacian, cotangent_laplacian_of, mass_matrix, mass_matrix_of,
