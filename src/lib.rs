@@ -29,4 +29,5 @@ pub mod mesh;
 pub mod solve;
 pub mod stereo;
 pub mod synth;
+pub mod timecode;
 pub mod track;

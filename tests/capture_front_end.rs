@@ -112,7 +112,9 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
     }
     let frames_csv = std::fs::read_to_string(s.join("frames.csv")).unwrap();
     assert_eq!(frames_csv.lines().count(), 5);
-    assert!(frames_csv.contains("1,16666667,01:00:00:00"));
+    // 60 fps cameras on 30 fps timecode: two sub-frames per timecode frame.
+    assert!(frames_csv.contains("1,16666667,01:00:00:00.1"));
+    assert!(frames_csv.contains("2,33333333,01:00:00:01.0"));
 
     let projections = read_projections(s);
     let truth = read_truth_in_cam0(s);

@@ -13,6 +13,46 @@ pub use replay::{Replay, ReplayParams, ReplayStats, SessionInfo, StereoFrame};
 
 use std::path::PathBuf;
 
+use crate::camera::StereoRig;
+
+/// A source of stereo frames for the pipeline: a replayed recording or live cameras.
+pub trait FrameSource: Send {
+    /// The next frame; `None` at the end of input (or when a live source was stopped).
+    fn next_frame(&mut self) -> Option<Result<StereoFrame, CaptureError>>;
+    /// Camera frames per second.
+    fn fps(&self) -> f64;
+    /// A live source runs on its own clock: the pipeline drops (and counts) its frames
+    /// when downstream falls behind instead of blocking it. A replay is never dropped.
+    fn is_live(&self) -> bool;
+    /// The stereo calibration, when the source knows it.
+    fn rig(&self) -> Option<&StereoRig>;
+    /// Frames lost or skipped at the source so far (bad frames of a replay, frames a
+    /// camera failed to deliver).
+    fn gaps(&self) -> usize;
+}
+
+impl FrameSource for Replay {
+    fn next_frame(&mut self) -> Option<Result<StereoFrame, CaptureError>> {
+        Replay::next_frame(self)
+    }
+
+    fn fps(&self) -> f64 {
+        self.info().fps
+    }
+
+    fn is_live(&self) -> bool {
+        false
+    }
+
+    fn rig(&self) -> Option<&StereoRig> {
+        Replay::rig(self)
+    }
+
+    fn gaps(&self) -> usize {
+        self.stats().gaps
+    }
+}
+
 /// Errors of the frame sources; each names the file and, where it applies, the frame.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {

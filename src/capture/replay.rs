@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 
 use super::{CaptureError, GrayImage, read_png_gray};
 use crate::camera::{StereoRig, read_rig};
+use crate::timecode::{Timecode, TimecodeRate};
 
 /// Replay settings.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -25,8 +26,11 @@ pub struct SessionInfo {
     pub fps: f64,
     /// Camera folder names (at least two; the first two form the stereo pair).
     pub cameras: Vec<String>,
-    /// Per frame: index, timestamp (ns) and timecode (may be empty).
-    pub frames: Vec<(usize, u64, String)>,
+    /// Timecode rate (`[timecode] rate` of `session.toml`; else the camera rate when it is
+    /// a standard one, drop-frame when the labels use `;`).
+    pub timecode_rate: Option<TimecodeRate>,
+    /// Per frame: index, timestamp (ns) and timecode (None where `frames.csv` has none).
+    pub frames: Vec<(usize, u64, Option<Timecode>)>,
 }
 
 /// One stereo frame.
@@ -36,8 +40,8 @@ pub struct StereoFrame {
     pub index: usize,
     /// Capture timestamp, ns.
     pub timestamp_ns: u64,
-    /// Timecode `HH:MM:SS:FF`, may be empty.
-    pub timecode: String,
+    /// Timecode, when the source has one.
+    pub timecode: Option<Timecode>,
     /// The two images (cam0, cam1).
     pub images: [GrayImage; 2],
 }
@@ -56,6 +60,12 @@ struct SessionToml {
     fps: f64,
     cameras: Vec<String>,
     calibration: Option<String>,
+    timecode: Option<TimecodeToml>,
+}
+
+#[derive(serde::Deserialize)]
+struct TimecodeToml {
+    rate: Option<TimecodeRate>,
 }
 
 /// Reads a recording session frame by frame. Iterate with [`Replay::next_frame`] (or as an
@@ -140,6 +150,7 @@ impl Replay {
                 ));
             }
         }
+        let mut timecode_rate = session.timecode.as_ref().and_then(|t| t.rate);
         let mut frames = Vec::new();
         for (i, line) in lines {
             if line.trim().is_empty() {
@@ -160,7 +171,32 @@ impl Replay {
             {
                 return Err(ferr(i + 1, format!("frame {index} is out of order")));
             }
-            frames.push((index, ts, f.get(2).unwrap_or(&"").to_string()));
+            let label = f.get(2).copied().unwrap_or("");
+            let timecode = if label.is_empty() {
+                None
+            } else {
+                let rate = match timecode_rate {
+                    Some(r) => r,
+                    None => {
+                        let r = TimecodeRate::from_fps(session.fps)
+                            .ok_or_else(|| {
+                                ferr(
+                                    i + 1,
+                                    "session.toml needs `[timecode] rate` to read timecodes".into(),
+                                )
+                            })
+                            .and_then(|r| {
+                                let df = label.contains(';');
+                                TimecodeRate::new(r.nominal, r.ntsc, df)
+                                    .map_err(|e| ferr(i + 1, e.to_string()))
+                            })?;
+                        timecode_rate = Some(r);
+                        r
+                    }
+                };
+                Some(Timecode::parse_at(label, rate).map_err(|e| ferr(i + 1, e.to_string()))?)
+            };
+            frames.push((index, ts, timecode));
         }
         if frames.is_empty() {
             return Err(ferr(2, "no frames".into()));
@@ -170,6 +206,7 @@ impl Replay {
                 root: root.to_path_buf(),
                 fps: session.fps,
                 cameras: session.cameras,
+                timecode_rate,
                 frames,
             },
             rig,
@@ -311,7 +348,11 @@ mod tests {
         let frames: Vec<StereoFrame> = replay.map(Result::unwrap).collect();
         assert_eq!(frames.len(), 3);
         assert_eq!(frames[1].timestamp_ns, 16_666_667);
-        assert_eq!(frames[2].timecode, "01:00:00:01");
+        assert_eq!(
+            frames[2].timecode.map(|t| t.to_string()).as_deref(),
+            Some("01:00:00:01")
+        );
+        assert_eq!(frames[1].timecode, None);
         assert_eq!(frames[0].images[1].get(3, 0), Some(3));
     }
 

@@ -65,6 +65,12 @@ pub struct SynthArgs {
     /// Also write the ground-truth mesh of every frame (gt/mesh/frame_NNNNNN.obj).
     #[arg(long)]
     meshes: bool,
+    /// Timecode rate of the session: 23.976, 24, 25, 29.97, 29.97df, 30, 50, 59.94, 60, ...
+    #[arg(long, default_value = "30")]
+    timecode_rate: helmcap::timecode::TimecodeRate,
+    /// Timecode of frame 0 (`HH:MM:SS:FF`; `HH:MM:SS;FF` for drop-frame rates).
+    #[arg(long, default_value = "01:00:00:00")]
+    timecode_start: String,
     /// Render calibration target images instead: `chessboard:COLSxROWS:SQUARE_MM`.
     #[arg(long, value_name = "SPEC")]
     target: Option<String>,
@@ -143,6 +149,8 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         slip_deg: args.slip_deg,
         face_distance_mm: args.distance,
         marker_radius_mm: args.marker_radius,
+        timecode_rate: args.timecode_rate,
+        timecode_start: args.timecode_start.clone(),
         seed: args.seed.wrapping_add(7),
         ..SynthParams::default()
     };

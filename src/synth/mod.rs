@@ -35,6 +35,7 @@ use crate::camera::{Camera, StereoRig};
 use crate::dataset::MarkerLayout;
 use crate::dataset::actor::Actor;
 use crate::mesh::Mesh;
+use crate::timecode::{Timecode, TimecodeRate};
 
 /// Errors of the synthesizer.
 #[derive(Debug, thiserror::Error)]
@@ -103,10 +104,11 @@ pub struct SynthParams {
     pub slip_period_secs: f64,
     /// Seed of noise and slip. Default 7.
     pub seed: u64,
-    /// Timecode start `HH:MM:SS:FF` written in `frames.csv` and `session.toml`.
+    /// Timecode of frame 0 (`HH:MM:SS:FF`, `;` before the frames for drop-frame rates),
+    /// written in `frames.csv` and `session.toml`. Default `01:00:00:00`.
     pub timecode_start: String,
-    /// Timecode rate, frames per second (whole number). Default 30.
-    pub timecode_rate: u32,
+    /// Timecode rate. Default 30 (60 fps cameras on 30 fps code: two sub-frames).
+    pub timecode_rate: TimecodeRate,
 }
 
 impl Default for SynthParams {
@@ -129,7 +131,7 @@ impl Default for SynthParams {
             slip_period_secs: 4.0,
             seed: 7,
             timecode_start: "01:00:00:00".into(),
-            timecode_rate: 30,
+            timecode_rate: TimecodeRate::FPS_30,
         }
     }
 }
@@ -171,47 +173,17 @@ impl SynthParams {
         check(self.slip_mm >= 0.0 && self.slip_mm < 50.0, "slip_mm")?;
         check(self.slip_deg >= 0.0 && self.slip_deg < 30.0, "slip_deg")?;
         check(self.slip_period_secs > 0.0, "slip_period_secs")?;
-        check(
-            self.timecode_rate > 0 && self.timecode_rate <= 120,
-            "timecode_rate",
-        )?;
-        parse_timecode(&self.timecode_start, self.timecode_rate)
-            .map(|_| ())
-            .ok_or_else(|| {
-                SynthError::Params(format!(
-                    "timecode_start {:?} is not HH:MM:SS:FF",
-                    self.timecode_start
-                ))
-            })
+        self.start_timecode().map(|_| ())
     }
-}
 
-/// Frames since midnight of a `HH:MM:SS:FF` timecode at `rate`.
-fn parse_timecode(s: &str, rate: u32) -> Option<u64> {
-    let parts: Vec<u64> = s
-        .split(':')
-        .map(|p| p.parse().ok())
-        .collect::<Option<_>>()?;
-    match parts.as_slice() {
-        &[h, m, sec, f] if h < 24 && m < 60 && sec < 60 && f < u64::from(rate) => {
-            Some(((h * 60 + m) * 60 + sec) * u64::from(rate) + f)
-        }
-        _ => None,
+    /// The timecode of frame 0.
+    ///
+    /// # Errors
+    /// [`SynthError::Params`] when `timecode_start` is not a label at `timecode_rate`.
+    pub fn start_timecode(&self) -> Result<Timecode, SynthError> {
+        Timecode::parse_at(&self.timecode_start, self.timecode_rate)
+            .map_err(|e| SynthError::Params(format!("timecode_start: {e}")))
     }
-}
-
-/// `HH:MM:SS:FF` of a frame count since midnight.
-fn format_timecode(frames: u64, rate: u32) -> String {
-    let rate = u64::from(rate);
-    let f = frames % rate;
-    let s = frames / rate;
-    format!(
-        "{:02}:{:02}:{:02}:{:02}",
-        (s / 3600) % 24,
-        (s / 60) % 60,
-        s % 60,
-        f
-    )
 }
 
 /// The default helmet rig (`calib/helmet-fisheye.yaml`): two fisheye cameras 1280×1024
@@ -539,15 +511,6 @@ pub fn write_png_gray(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn timecode_round_trip() {
-        let f = parse_timecode("01:02:03:04", 30).unwrap();
-        assert_eq!(f, ((60 + 2) * 60 + 3) * 30 + 4);
-        assert_eq!(format_timecode(f, 30), "01:02:03:04");
-        assert!(parse_timecode("01:02:03:30", 30).is_none());
-        assert!(parse_timecode("1:2:3", 30).is_none());
-    }
 
     #[test]
     fn default_rig_is_a_helmet() {

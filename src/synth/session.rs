@@ -9,8 +9,8 @@ use nalgebra::{IsometryMatrix3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::{
-    Performer, Scene, SynthError, SynthParams, format_timecode, neutral_head_pose, parse_timecode,
-    quaternion_wxyz, raster, shade, slip, to_gray8, write_png_gray,
+    Performer, Scene, SynthError, SynthParams, neutral_head_pose, quaternion_wxyz, raster, shade,
+    slip, to_gray8, write_png_gray,
 };
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
@@ -130,8 +130,7 @@ pub fn render_session(
         .sum::<Vector3<f64>>()
         / layout.len() as f64;
     let pivot = Point3::from(pivot);
-    let tc_start = parse_timecode(&params.timecode_start, params.timecode_rate)
-        .ok_or_else(|| SynthError::Params("timecode_start".into()))?;
+    let clock = crate::timecode::TimecodeClock::new(params.start_timecode()?, params.fps);
     let cams = [&rig.cam0, &rig.cam1];
     let done = AtomicUsize::new(0);
 
@@ -333,20 +332,14 @@ pub fn render_session(
         message: e.to_string(),
     })?;
     let session = format!(
-        "# Synthetic helmet session rendered by helmcap synth.\nfps = {:?}\ncameras = [\"cam0\", \"cam1\"]\ncalibration = \"calibration.yaml\"\n\n[timecode]\nrate = {}\nstart = \"{}\"\n",
+        "# Synthetic helmet session rendered by helmcap synth.\nfps = {:?}\ncameras = [\"cam0\", \"cam1\"]\ncalibration = \"calibration.yaml\"\n\n[timecode]\nrate = \"{}\"\nstart = \"{}\"\n",
         params.fps, params.timecode_rate, params.timecode_start
     );
     write_text(&out.join("session.toml"), &session)?;
     let mut frames = String::from("frame,timestamp_ns,timecode\n");
     for f in 0..weights.len() {
         let t_ns = (f as f64 * 1e9 / params.fps).round() as u64;
-        let tc_frames =
-            tc_start + (f as f64 * f64::from(params.timecode_rate) / params.fps).floor() as u64;
-        let _ = writeln!(
-            frames,
-            "{f},{t_ns},{}",
-            format_timecode(tc_frames, params.timecode_rate)
-        );
+        let _ = writeln!(frames, "{f},{t_ns},{}", clock.stamp(f as u64));
     }
     write_text(&out.join("frames.csv"), &frames)?;
     let mut bundles = String::from("frame,marker,x,y,z,visible0,visible1\n");
