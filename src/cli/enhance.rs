@@ -51,8 +51,16 @@ pub fn build_enhancer(
         return Ok((dataset, enhancer));
     }
     let dataset = args.load()?;
-    let enhancer =
-        Enhancer::new(&dataset, params).context("precomputing the enhancement database")?;
+    let manifest = helmcap::dataset::Manifest::read(Path::new(database))
+        .with_context(|| format!("reading {database}"))?;
+    let enhancer = match manifest.regions {
+        Some(cores) => {
+            tracing::info!("voluntary regions from the manifest's [regions]");
+            Enhancer::with_regions(&dataset, params, &VoluntaryRegions { cores })
+        }
+        None => Enhancer::new(&dataset, params),
+    }
+    .context("precomputing the enhancement database")?;
     Ok((dataset, enhancer))
 }
 
