@@ -56,15 +56,53 @@ pub fn deformation_gradients(
         .collect()
 }
 
-/// Polar decomposition `F = R S` with `R` a proper rotation and `S` symmetric, by the SVD
-/// `F = U Σ Vᵀ`: `R = U Vᵀ`, `S = V Σ Vᵀ` (sign of the smallest singular value flipped
-/// when `det F < 0`, so that `R` stays a rotation and `S` absorbs the reflection).
+/// Polar decomposition `F = R S` with `R` a proper rotation and `S` symmetric.
 ///
-/// Returns `None` when the SVD fails to converge (non-finite input).
+/// For `det F > 0` (every triangle that is not inverted) by Higham's scaled Newton
+/// iteration `R ← (γR + R⁻ᵀ/γ)/2`, `γ = |det R|^(−1/3)` (Higham 1986), which converges
+/// quadratically to the orthogonal factor in a handful of 3×3 inversions, then
+/// `S = sym(Rᵀ F)`; this is what makes per-frame encoding of a 400k-vertex mesh affordable.
+/// Otherwise, or if the iteration does not settle, by the SVD `F = U Σ Vᵀ`: `R = U Vᵀ`,
+/// `S = V Σ Vᵀ` (sign of the smallest singular value flipped when `det F < 0`, so that `R`
+/// stays a rotation and `S` absorbs the reflection).
+///
+/// Returns `None` for non-finite input or when the SVD fails to converge.
 pub fn polar_decomposition(f: &Matrix3<f64>) -> Option<(Rotation3<f64>, Matrix3<f64>)> {
     if !f.iter().all(|x| x.is_finite()) {
         return None;
     }
+    if let Some(r) = newton_rotation(f) {
+        let s = r.transpose() * f;
+        let s = (s + s.transpose()) * 0.5;
+        return Some((Rotation3::from_matrix_unchecked(r), s));
+    }
+    polar_by_svd(f)
+}
+
+/// The orthogonal polar factor of `f` by scaled Newton iteration, when `det f > 0` and the
+/// iteration converges to a rotation within 1e-12; `None` otherwise.
+fn newton_rotation(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let scale = f.norm();
+    if !(scale > 0.0) || f.determinant() <= 1e-12 * scale * scale * scale {
+        return None;
+    }
+    let mut r = *f / scale;
+    for _ in 0..30 {
+        let inv_t = r.try_inverse()?.transpose();
+        let gamma = r.determinant().abs().cbrt().recip();
+        let next = (r * gamma + inv_t / gamma) * 0.5;
+        let change = (next - r).norm();
+        r = next;
+        if change < 1e-13 {
+            let orthogonality = (r.transpose() * r - Matrix3::identity()).norm();
+            return (orthogonality < 1e-12 && r.determinant() > 0.0).then_some(r);
+        }
+    }
+    None
+}
+
+/// [`polar_decomposition`] by the SVD (any finite `f`, inverted triangles included).
+fn polar_by_svd(f: &Matrix3<f64>) -> Option<(Rotation3<f64>, Matrix3<f64>)> {
     let svd = f.svd(true, true);
     let mut u = svd.u?;
     let v_t = svd.v_t?;
@@ -176,5 +214,38 @@ mod tests {
         assert!((r3.matrix().determinant() - 1.0).abs() < 1e-12);
         assert!((r3.matrix() * s3 - m).norm() < 1e-12);
         assert!(polar_decomposition(&Matrix3::from_element(f64::NAN)).is_none());
+    }
+
+    #[test]
+    fn newton_and_svd_polar_factors_agree() {
+        // Rotations times stretches from mild to strongly anisotropic (condition 1e3).
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut newton_used = 0;
+        for k in 0..200 {
+            let r = Rotation3::new(Vector3::new(next(), next(), next()) * 2.0);
+            let q = Rotation3::new(Vector3::new(next(), next(), next()));
+            let spread = 10f64.powf(3.0 * f64::from(k % 4) / 3.0);
+            let d = Vector3::new(1.0 + 0.3 * next(), spread, 1.0 / (1.0 + 0.5 * next().abs()));
+            let s = q.matrix() * Matrix3::from_diagonal(&d) * q.matrix().transpose();
+            let f = r.matrix() * s * 0.7;
+            if newton_rotation(&f).is_some() {
+                newton_used += 1;
+            }
+            let (rn, sn) = polar_decomposition(&f).unwrap();
+            let (rs, ss) = polar_by_svd(&f).unwrap();
+            assert!((rn.matrix() - rs.matrix()).norm() < 1e-9, "case {k}");
+            assert!((sn - ss).norm() < 1e-9 * ss.norm(), "case {k}");
+            assert!((rn.matrix() - r.matrix()).norm() < 1e-9, "case {k}");
+        }
+        assert_eq!(
+            newton_used, 200,
+            "every positive-determinant case takes the fast path"
+        );
     }
 }
