@@ -83,7 +83,7 @@ pub fn polar_decomposition(f: &Matrix3<f64>) -> Option<(Rotation3<f64>, Matrix3<
 /// iteration converges to a rotation within 1e-12; `None` otherwise.
 fn newton_rotation(f: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     let scale = f.norm();
-    if !(scale > 0.0) || f.determinant() <= 1e-12 * scale * scale * scale {
+    if scale <= 0.0 || f.determinant() <= 1e-12 * scale * scale * scale {
         return None;
     }
     let mut r = *f / scale;
