@@ -103,6 +103,9 @@ pub struct CalibrateParams {
     pub subpix_half_window_px: i32,
     /// Most corrected bits accepted in a tag detection. Default 1.
     pub max_tag_hamming: usize,
+    /// Refine AprilTag corners on the tag edges near each corner ([`refine_tag_corners`]);
+    /// off keeps the AprilTag library's corners. Default on.
+    pub refine_tag_corners: bool,
 }
 
 impl Default for CalibrateParams {
@@ -116,6 +119,7 @@ impl Default for CalibrateParams {
             outlier_rms_floor_px: 1.0,
             subpix_half_window_px: 5,
             max_tag_hamming: 1,
+            refine_tag_corners: true,
         }
     }
 }
@@ -1190,7 +1194,11 @@ fn detect_aprilgrid(
     tags.sort_by_key(|t| t.0);
     let mut obs = TargetObservation::default();
     for (id, corners) in &tags {
-        let refined = refine_tag_corners(image, corners);
+        let refined = if params.refine_tag_corners {
+            refine_tag_corners(image, corners)
+        } else {
+            *corners
+        };
         for (k, p) in refined.iter().enumerate() {
             obs.ids.push(4 * id + k);
             obs.pixels.push(*p);
