@@ -240,8 +240,12 @@ pub enum DropReason {
         /// The camera's median view RMS, pixels.
         median_px: f64,
     },
-    /// The other camera of the pair could not use its image.
-    OtherCamera,
+    /// (Stereo step) the pair's images are not both usable: `cameras` names the cameras
+    /// whose image was dropped, e.g. `cam1` or `cam0 and cam1`.
+    UnusableImage {
+        /// The cameras whose image was dropped.
+        cameras: String,
+    },
 }
 
 impl fmt::Display for DropReason {
@@ -256,7 +260,7 @@ impl fmt::Display for DropReason {
                 f,
                 "reprojection outlier (RMS {rms_px:.2} px, median {median_px:.2} px)"
             ),
-            Self::OtherCamera => f.write_str("not usable in the other camera"),
+            Self::UnusableImage { cameras } => write!(f, "{cameras} image unusable"),
         }
     }
 }
@@ -269,7 +273,7 @@ impl DropReason {
             Self::TooFewPoints { .. } => "too few points",
             Self::Degenerate(_) => "degenerate",
             Self::Outlier { .. } => "reprojection outlier",
-            Self::OtherCamera => "not usable in the other camera",
+            Self::UnusableImage { .. } => "an image of the pair unusable",
         }
     }
 }
@@ -478,7 +482,14 @@ pub fn calibrate_stereo(
     for (v, det) in detections.iter().enumerate() {
         let (ok0, ok1) = (cam0.views[v].is_used(), cam1.views[v].is_used());
         if !(ok0 && ok1) {
-            stereo_use.push(ViewUse::Dropped(DropReason::OtherCamera));
+            let cameras = match (ok0, ok1) {
+                (true, _) => "cam1",
+                (_, true) => "cam0",
+                _ => "cam0 and cam1",
+            };
+            stereo_use.push(ViewUse::Dropped(DropReason::UnusableImage {
+                cameras: cameras.into(),
+            }));
             if ok0 || ok1 {
                 tracing::warn!(
                     "pair {v}: used for one camera's intrinsics only (the other image is unusable)"
@@ -487,8 +498,10 @@ pub fn calibrate_stereo(
             continue;
         }
         let (Ok(a), Ok(b)) = (&det[0], &det[1]) else {
-            stereo_use.push(ViewUse::Dropped(DropReason::OtherCamera));
-            continue;
+            return Err(CalibrateError::Failed {
+                stage: "stereo".into(),
+                message: format!("pair {v} is used by both cameras but has no detection"),
+            });
         };
         let common = common_points(a, b);
         if common.len() < params.min_points_per_view {
