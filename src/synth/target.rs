@@ -447,6 +447,15 @@ mod tests {
     }
 
     #[test]
+    fn parse_spec() {
+        let b = Chessboard::parse("chessboard:9x6:20").unwrap();
+        assert_eq!((b.cols, b.rows, b.square_mm), (9, 6, 20.0));
+        assert!(Chessboard::parse("chessboard:9x6").is_err());
+        assert!(Chessboard::parse("aprilgrid:6x6:30:0.3").is_err());
+        assert_eq!(b.corners().len(), 54);
+    }
+
+    #[test]
     fn board_renders_black_and_white_squares_where_projected() {
         let rig = super::super::default_rig().unwrap();
         let board = Chessboard::parse("chessboard:5x4:20").unwrap();
