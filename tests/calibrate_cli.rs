@@ -222,6 +222,12 @@ fn assert_error(out: &Output, needles: &[&str]) {
 
 #[test]
 fn bad_input_gets_one_clear_error() {
+    let help = helmcap(&["calibrate", "--help"]);
+    assert!(help.status.success());
+    let text = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        text.contains("aprilgrid:COLSxROWS:TAG_MM:SPACING_RATIO") && text.contains("--min-pairs")
+    );
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     blank_pairs(dir, 6);
