@@ -1,11 +1,15 @@
 //! Camera models and stereo rigs: OpenCV radial-tangential pinhole and fisheye
 //! (Kannala-Brandt) projection, unprojection and undistortion in pure Rust, and the
-//! calibration file (OpenCV FileStorage YAML) that describes a helmet's stereo pair.
+//! calibration file (OpenCV FileStorage YAML) that describes a helmet's stereo pair;
+//! calibration targets ([`target`]).
 //!
 //! Depends on nothing else in helmcap.
 
 mod calib_file;
+pub mod calibrate;
 mod model;
+pub mod tag36h11;
+pub mod target;
 
 pub use calib_file::{CalibFileError, format_rig, parse_rig, read_rig, write_rig};
 pub use model::{Camera, Distortion};

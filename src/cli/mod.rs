@@ -2,6 +2,7 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
+mod calibrate;
 mod dataset;
 mod demo;
 mod enhance;
@@ -48,6 +49,8 @@ enum Command {
     Bench(bench::BenchCommand),
     /// Render a synthetic helmet recording with ground truth, or calibration target images.
     Synth(synth::SynthArgs),
+    /// Stereo calibration from image pairs of a target -> calibration YAML.
+    Calibrate(calibrate::CalibrateArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -78,6 +81,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
     }
 }
 

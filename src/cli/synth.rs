@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::Context;
 use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor;
-use helmcap::synth::target::{Chessboard, TargetParams, render_targets};
+use helmcap::synth::target::{CalibrationTarget, TargetParams, render_targets};
 use helmcap::synth::{
     AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
 };
@@ -71,7 +71,8 @@ pub struct SynthArgs {
     /// Timecode of frame 0 (`HH:MM:SS:FF`; `HH:MM:SS;FF` for drop-frame rates).
     #[arg(long, default_value = "01:00:00:00")]
     timecode_start: String,
-    /// Render calibration target images instead: `chessboard:COLSxROWS:SQUARE_MM`.
+    /// Render calibration target images instead: `chessboard:COLSxROWS:SQUARE_MM` or
+    /// `aprilgrid:COLSxROWS:TAG_MM:SPACING_RATIO` (tag36h11, Kalibr layout).
     #[arg(long, value_name = "SPEC")]
     target: Option<String>,
     /// Number of target views (with --target).
@@ -85,7 +86,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         None => default_rig().context("the built-in rig")?,
     };
     if let Some(spec) = &args.target {
-        let board = Chessboard::parse(spec)?;
+        let target = CalibrationTarget::parse(spec)?;
         let params = TargetParams {
             views: args.views,
             noise_dn: args.noise,
@@ -93,7 +94,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
             ..TargetParams::default()
         };
         let start = Instant::now();
-        render_targets(&rig, &board, &params, &args.out)
+        render_targets(&rig, &target, &params, &args.out)
             .with_context(|| format!("rendering targets into {}", args.out.display()))?;
         println!(
             "wrote {} target image pairs to {} in {:.1} s",

@@ -1,16 +1,19 @@
-//! Images of a planar chessboard calibration target seen by a stereo rig, with the board
-//! poses as ground truth, so calibration can be checked against known parameters.
+//! Images of a planar calibration target (chessboard or AprilTag grid, see
+//! [`crate::camera::target`]) seen by a stereo rig, with the board poses as ground truth, so
+//! calibration can be checked against known parameters.
 //!
-//! Each pixel's ray is intersected with the board plane (exact lens model); the checker
-//! pattern is box-filtered over the pixel footprint per board axis (the filtered square wave
-//! `q(u) = q_k · min(1, 2·e/w_u)`, `e` the distance to the nearest square edge, `w_u` the
-//! footprint in squares), which gives sharp, alias-free edges with correct subpixel
-//! positions.
+//! Each pixel's ray is intersected with the board plane (exact lens model), and the
+//! pattern is box-filtered over the pixel's footprint on the board (the bounding box, in
+//! board axes, of the board points seen by the pixel and its neighbours), which gives
+//! sharp, alias-free edges at unbiased subpixel positions. Chessboard: the filtered square
+//! wave `q(u) = q_k · min(1, 2·e/w_u)` per axis (`e` the distance to the nearest square
+//! edge, `w_u` the footprint in squares). AprilTag grid: the exact area integral of the
+//! black/white cell pattern over the footprint box, cut at every cell edge inside it.
 
 use std::fmt::Write as _;
 use std::path::Path;
 
-use nalgebra::{IsometryMatrix3, Point3, Rotation3, Translation3, Vector3};
+use nalgebra::{IsometryMatrix3, Rotation3, Translation3, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
@@ -18,67 +21,14 @@ use rayon::prelude::*;
 use super::{SynthError, quaternion_wxyz, raster, to_gray8, write_png_gray};
 use crate::camera::{Camera, StereoRig};
 
-/// A chessboard: `cols × rows` inner corners, squares of `square_mm`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Chessboard {
-    /// Inner corners along the board's x axis.
-    pub cols: u32,
-    /// Inner corners along the board's y axis.
-    pub rows: u32,
-    /// Side of a square, mm.
-    pub square_mm: f64,
-}
+pub use crate::camera::target::{Aprilgrid, CalibrationTarget, Chessboard};
 
-impl Chessboard {
-    /// Parses `chessboard:COLSxROWS:SQUARE_MM`, for example `chessboard:9x6:20`.
-    ///
-    /// # Errors
-    /// [`SynthError::Params`] with the expected form.
-    pub fn parse(spec: &str) -> Result<Self, SynthError> {
-        let bad = || {
-            SynthError::Params(format!(
-                "target {spec:?}: expected chessboard:COLSxROWS:SQUARE_MM, e.g. chessboard:9x6:20"
-            ))
-        };
-        let rest = spec.strip_prefix("chessboard:").ok_or_else(bad)?;
-        let (size, square) = rest.split_once(':').ok_or_else(bad)?;
-        let (c, r) = size.split_once('x').ok_or_else(bad)?;
-        let board = Self {
-            cols: c.parse().map_err(|_| bad())?,
-            rows: r.parse().map_err(|_| bad())?,
-            square_mm: square.parse().map_err(|_| bad())?,
-        };
-        if board.cols < 2 || board.rows < 2 || board.square_mm.is_nan() || board.square_mm <= 0.0 {
-            return Err(bad());
-        }
-        Ok(board)
-    }
-
-    /// Inner corners in the board frame (z = 0), row by row, mm, as OpenCV orders them
-    /// (x fastest).
-    pub fn corners(&self) -> Vec<Point3<f64>> {
-        let mut out = Vec::new();
-        for r in 1..=self.rows {
-            for c in 1..=self.cols {
-                out.push(Point3::new(
-                    f64::from(c) * self.square_mm,
-                    f64::from(r) * self.square_mm,
-                    0.0,
-                ));
-            }
-        }
-        out
-    }
-
-    /// Centre of the board, board frame, mm.
-    pub fn centre(&self) -> Point3<f64> {
-        Point3::new(
-            f64::from(self.cols + 1) * self.square_mm / 2.0,
-            f64::from(self.rows + 1) * self.square_mm / 2.0,
-            0.0,
-        )
-    }
-}
+/// Level of black target print, 8-bit scale.
+const BLACK_DN: f32 = 35.0;
+/// Level of white target print, 8-bit scale.
+const WHITE_DN: f32 = 225.0;
+/// Level of the background around the board, 8-bit scale.
+const BACKGROUND_DN: f32 = 60.0;
 
 /// Parameters of rendered target views.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,17 +60,13 @@ impl Default for TargetParams {
     }
 }
 
-/// Renders one view of the board: 8-bit radiance before noise.
-pub fn render_board(
-    camera: &Camera,
-    board: &Chessboard,
-    cam_from_board: &IsometryMatrix3<f64>,
-) -> Vec<f32> {
+/// Board coordinates (mm, board frame) of each pixel centre's ray, NaN where the ray
+/// misses the board plane.
+fn board_coordinates(camera: &Camera, cam_from_board: &IsometryMatrix3<f64>) -> Vec<[f64; 2]> {
     let (w, h) = (camera.width_px as usize, camera.height_px as usize);
     let board_from_cam = cam_from_board.inverse();
     let origin = board_from_cam.translation.vector;
-    // Board coordinates (in squares) of each pixel centre's ray, NaN where it misses.
-    let uv: Vec<[f64; 2]> = (0..w * h)
+    (0..w * h)
         .into_par_iter()
         .map(|i| {
             let px = nalgebra::Point2::new((i % w) as f64, (i / w) as f64);
@@ -136,8 +82,58 @@ pub fn render_board(
                 return [f64::NAN; 2];
             }
             let p = origin + d * s;
-            [p.x / board.square_mm, p.y / board.square_mm]
+            [p.x, p.y]
         })
+        .collect()
+}
+
+/// Footprint of pixel `i` on the board: widths along the board's x and y axes (same unit
+/// as `uv`), from the neighbouring pixels' board coordinates.
+fn footprint(uv: &[[f64; 2]], i: usize, w: usize, h: usize, fallback: f64) -> (f64, f64) {
+    let [u, v] = uv[i];
+    let (x, y) = (i % w, i / w);
+    let neighbour = |j: usize| uv.get(j).copied().filter(|q| q[0].is_finite());
+    let dx = neighbour(if x + 1 < w {
+        i + 1
+    } else {
+        i.saturating_sub(1)
+    });
+    let dy = neighbour(if y + 1 < h {
+        i + w
+    } else {
+        i.saturating_sub(w)
+    });
+    match (dx, dy) {
+        (Some(a), Some(b)) => (
+            (a[0] - u).abs() + (b[0] - u).abs(),
+            (a[1] - v).abs() + (b[1] - v).abs(),
+        ),
+        _ => (fallback, fallback),
+    }
+}
+
+/// Renders one view of a target: 8-bit radiance before blur and noise.
+pub fn render_target(
+    camera: &Camera,
+    target: &CalibrationTarget,
+    cam_from_board: &IsometryMatrix3<f64>,
+) -> Vec<f32> {
+    match target {
+        CalibrationTarget::Chessboard(b) => render_board(camera, b, cam_from_board),
+        CalibrationTarget::Aprilgrid(g) => render_aprilgrid(camera, g, cam_from_board),
+    }
+}
+
+/// Renders one view of the chessboard: 8-bit radiance before blur and noise.
+pub fn render_board(
+    camera: &Camera,
+    board: &Chessboard,
+    cam_from_board: &IsometryMatrix3<f64>,
+) -> Vec<f32> {
+    let (w, h) = (camera.width_px as usize, camera.height_px as usize);
+    let uv: Vec<[f64; 2]> = board_coordinates(camera, cam_from_board)
+        .into_iter()
+        .map(|[x, y]| [x / board.square_mm, y / board.square_mm])
         .collect();
     let (nu, nv) = (f64::from(board.cols + 1), f64::from(board.rows + 1));
     let border = 0.6;
@@ -146,21 +142,11 @@ pub fn render_board(
         .map(|i| {
             let [u, v] = uv[i];
             if !u.is_finite() {
-                return 60.0;
+                return BACKGROUND_DN;
             }
-            let (x, y) = (i % w, i / w);
-            let neighbour = |j: usize| uv.get(j).copied().filter(|q| q[0].is_finite());
-            let dx = neighbour(if x + 1 < w { i + 1 } else { i - 1 });
-            let dy = neighbour(if y + 1 < h { i + w } else { i - w });
-            let (wu, wv) = match (dx, dy) {
-                (Some(a), Some(b)) => (
-                    (a[0] - u).abs() + (b[0] - u).abs(),
-                    (a[1] - v).abs() + (b[1] - v).abs(),
-                ),
-                _ => (0.05, 0.05),
-            };
+            let (wu, wv) = footprint(&uv, i, w, h, 0.05);
             if u < -border || v < -border || u > nu + border || v > nv + border {
-                return 60.0;
+                return BACKGROUND_DN;
             }
             let q = |t: f64, width: f64| {
                 let k = t.floor();
@@ -175,23 +161,96 @@ pub fn render_board(
             let inside = u > 0.0 && v > 0.0 && u < nu && v < nv;
             // Squares: the corner square (0, 0) is black; the margin is white.
             let value = if inside { -q(u, wu) * q(v, wv) } else { 1.0 };
-            (130.0 + 95.0 * value) as f32
+            let mid = f64::from(WHITE_DN + BLACK_DN) / 2.0;
+            let half = f64::from(WHITE_DN - BLACK_DN) / 2.0;
+            (mid + half * value) as f32
         })
         .collect()
 }
 
-/// A random board pose in front of the rig with every corner inside both images (at
+/// Renders one view of the AprilTag grid: 8-bit radiance before blur and noise. The white
+/// margin around the tags is as wide as the gap between tags, and at least two cells.
+pub fn render_aprilgrid(
+    camera: &Camera,
+    grid: &Aprilgrid,
+    cam_from_board: &IsometryMatrix3<f64>,
+) -> Vec<f32> {
+    let (w, h) = (camera.width_px as usize, camera.height_px as usize);
+    let uv = board_coordinates(camera, cam_from_board);
+    let (p, s, cell) = (grid.pitch_mm(), grid.tag_mm, grid.cell_mm());
+    let margin = (grid.spacing_ratio * s).max(2.0 * cell);
+    let x_max = f64::from(grid.cols - 1) * p + s + margin;
+    let y_max = f64::from(grid.rows - 1) * p + s + margin;
+    let level = |x: f64, y: f64| {
+        if x < -margin || y < -margin || x > x_max || y > y_max {
+            BACKGROUND_DN
+        } else if grid.is_black(x, y) {
+            BLACK_DN
+        } else {
+            WHITE_DN
+        }
+    };
+    // Every edge of the pattern along one axis inside (a, b), plus a and b.
+    let cuts = |a: f64, b: f64, n: u32, edge_max: f64| {
+        let mut out = vec![a];
+        for e in [-margin, edge_max] {
+            if e > a && e < b {
+                out.push(e);
+            }
+        }
+        let first = (a / p).floor().max(0.0) as u32;
+        let last = ((b / p).floor().max(0.0) as u32).min(n - 1);
+        for k in first..=last {
+            for j in 0..=crate::camera::target::TAG36H11_BLACK_CELLS {
+                let e = f64::from(k) * p + f64::from(j) * cell;
+                if e > a && e < b {
+                    out.push(e);
+                }
+            }
+        }
+        out.push(b);
+        out.sort_by(f64::total_cmp);
+        out
+    };
+    (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let [u, v] = uv[i];
+            if !u.is_finite() {
+                return BACKGROUND_DN;
+            }
+            let (wu, wv) = footprint(&uv, i, w, h, 0.05 * cell);
+            let (wu, wv) = (wu.max(1e-9), wv.max(1e-9));
+            let xs = cuts(u - wu / 2.0, u + wu / 2.0, grid.cols, x_max);
+            let ys = cuts(v - wv / 2.0, v + wv / 2.0, grid.rows, y_max);
+            let mut sum = 0.0;
+            for xw in xs.windows(2) {
+                for yw in ys.windows(2) {
+                    let area = (xw[1] - xw[0]) * (yw[1] - yw[0]);
+                    if area > 0.0 {
+                        let l = level(0.5 * (xw[0] + xw[1]), 0.5 * (yw[0] + yw[1]));
+                        sum += area * f64::from(l);
+                    }
+                }
+            }
+            (sum / (wu * wv)) as f32
+        })
+        .collect()
+}
+
+/// A random board pose in front of the rig with every target point inside both images (at
 /// least 20 px from the border), or `None` after many tries.
 fn random_pose(
     rng: &mut StdRng,
     rig: &StereoRig,
-    board: &Chessboard,
+    target: &CalibrationTarget,
     params: &TargetParams,
 ) -> Option<IsometryMatrix3<f64>> {
     let axis1 = rig.cam1_from_cam0.rotation.inverse() * Vector3::z();
     let axis = (Vector3::z() + axis1).normalize();
     let mid = rig.cam1_centre_in_cam0().coords * 0.5;
-    let corners = board.corners();
+    let corners = target.points();
+    let board_centre = target.centre();
     for _ in 0..2000 {
         let dist = rng.random_range(params.distance_mm.0..=params.distance_mm.1);
         let lateral = Vector3::new(
@@ -210,7 +269,7 @@ fn random_pose(
                 rng.random_range(-0.3..0.3),
             );
         let cam0_from_board =
-            IsometryMatrix3::from_parts(Translation3::from(centre - r * board.centre().coords), r);
+            IsometryMatrix3::from_parts(Translation3::from(centre - r * board_centre.coords), r);
         let ok = [
             (&rig.cam0, IsometryMatrix3::identity()),
             (&rig.cam1, rig.cam1_from_cam0),
@@ -234,7 +293,7 @@ fn random_pose(
     None
 }
 
-/// Renders `params.views` image pairs of `board` seen by `rig` into `out/cam0/NNNNNN.png`
+/// Renders `params.views` image pairs of `target` seen by `rig` into `out/cam0/NNNNNN.png`
 /// and `out/cam1/NNNNNN.png`, with `out/calibration.yaml` (the true rig) and
 /// `out/gt/board_poses.csv` (`view,qw,qx,qy,qz,tx,ty,tz`: board → cam0, mm).
 ///
@@ -243,16 +302,16 @@ fn random_pose(
 /// that cannot be written.
 pub fn render_targets(
     rig: &StereoRig,
-    board: &Chessboard,
+    target: &CalibrationTarget,
     params: &TargetParams,
     out: &Path,
 ) -> Result<(), SynthError> {
     let mut rng = StdRng::seed_from_u64(params.seed);
     let mut poses = Vec::new();
     for _ in 0..params.views {
-        poses.push(random_pose(&mut rng, rig, board, params).ok_or_else(|| {
+        poses.push(random_pose(&mut rng, rig, target, params).ok_or_else(|| {
             SynthError::Params(
-                "the board does not fit in both images: use a smaller board or a larger distance"
+                "the target does not fit in both images: use a smaller target or a larger distance"
                     .into(),
             )
         })?);
@@ -271,7 +330,7 @@ pub fn render_targets(
         .into_iter()
         .enumerate()
         {
-            let mut img = render_board(cam, board, &(from0 * pose));
+            let mut img = render_target(cam, target, &(from0 * pose));
             raster::gaussian_blur(
                 &mut img,
                 cam.width_px as usize,
@@ -315,6 +374,77 @@ pub fn render_targets(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Point3;
+
+    /// A rendered, blurred and noisy view of `target` in cam0 of the default rig, and its
+    /// board pose.
+    fn noisy_view(
+        target: &CalibrationTarget,
+        seed: u64,
+    ) -> (
+        StereoRig,
+        IsometryMatrix3<f64>,
+        crate::camera::calibrate::TargetImage,
+    ) {
+        let rig = super::super::default_rig().unwrap();
+        let params = TargetParams::default();
+        let mut rng = StdRng::seed_from_u64(seed);
+        let pose = random_pose(&mut rng, &rig, target, &params).unwrap();
+        let (w, h) = (rig.cam0.width_px as usize, rig.cam0.height_px as usize);
+        let mut img = render_target(&rig.cam0, target, &pose);
+        raster::gaussian_blur(&mut img, w, h, params.blur_px);
+        let pixels = to_gray8(&img, params.noise_dn, seed);
+        let image = crate::camera::calibrate::TargetImage {
+            width: w as u32,
+            height: h as u32,
+            pixels,
+        };
+        (rig, pose, image)
+    }
+
+    /// The AprilTag detector finds every rendered tag with its corners where the camera
+    /// model projects them (ids, corner order and pixel convention agree), and the corner
+    /// refinement brings them to subpixel accuracy.
+    #[test]
+    fn apriltag_finds_rendered_tag_corners_to_subpixel_accuracy() {
+        use crate::camera::calibrate::{CalibrateParams, detect_target};
+        let target = CalibrationTarget::parse("aprilgrid:6x6:30:0.3").unwrap();
+        let points = target.points();
+        let raw_params = CalibrateParams {
+            refine_tag_corners: false,
+            ..CalibrateParams::default()
+        };
+        let (mut sum, mut sum_raw) = (0.0, 0.0);
+        let mut n = 0;
+        for seed in [1, 2, 3] {
+            let (rig, pose, image) = noisy_view(&target, seed);
+            let obs = detect_target(&image, &target, &CalibrateParams::default())
+                .unwrap()
+                .unwrap();
+            let raw = detect_target(&image, &target, &raw_params)
+                .unwrap()
+                .unwrap();
+            assert_eq!(obs.ids.len(), points.len(), "all 36 tags found");
+            assert_eq!(obs.ids, raw.ids);
+            let mut worst = 0.0f64;
+            for ((id, px), px_raw) in obs.ids.iter().zip(&obs.pixels).zip(&raw.pixels) {
+                let truth = rig.cam0.project(&(pose * points[*id]).coords).unwrap();
+                let e = (px - truth).norm();
+                worst = worst.max(e);
+                sum += e * e;
+                sum_raw += (px_raw - truth).norm_squared();
+                n += 1;
+            }
+            assert!(worst < 0.5, "worst corner error {worst} px");
+        }
+        let rms = (sum / n as f64).sqrt();
+        let rms_raw = (sum_raw / n as f64).sqrt();
+        eprintln!(
+            "aprilgrid corner RMS over {n} corners: {rms:.4} px refined, {rms_raw:.4} px as detected"
+        );
+        assert!(rms < 0.15, "corner RMS {rms} px");
+        assert!(rms < rms_raw, "refinement must help: {rms} vs {rms_raw} px");
+    }
 
     #[test]
     fn parse_spec() {
@@ -330,7 +460,8 @@ mod tests {
         let rig = super::super::default_rig().unwrap();
         let board = Chessboard::parse("chessboard:5x4:20").unwrap();
         let mut rng = StdRng::seed_from_u64(1);
-        let pose = random_pose(&mut rng, &rig, &board, &TargetParams::default()).unwrap();
+        let target = CalibrationTarget::Chessboard(board);
+        let pose = random_pose(&mut rng, &rig, &target, &TargetParams::default()).unwrap();
         let img = render_board(&rig.cam0, &board, &pose);
         let w = rig.cam0.width_px as usize;
         // Centre of square (0, 0) is black, of square (1, 0) white.
@@ -351,7 +482,8 @@ mod tests {
         let board = Chessboard::parse("chessboard:9x6:20").unwrap();
         let params = TargetParams::default();
         let mut rng = StdRng::seed_from_u64(2);
-        let pose = random_pose(&mut rng, &rig, &board, &params).unwrap();
+        let target = CalibrationTarget::Chessboard(board);
+        let pose = random_pose(&mut rng, &rig, &target, &params).unwrap();
         let (w, h) = (rig.cam0.width_px as usize, rig.cam0.height_px as usize);
         let mut img = render_board(&rig.cam0, &board, &pose);
         raster::gaussian_blur(&mut img, w, h, params.blur_px);
