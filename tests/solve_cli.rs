@@ -130,3 +130,51 @@ fn solve_writes_frames_through_the_bundles() {
     assert!(!o.status.success() && !err.contains("panicked"), "{err}");
     assert!(err.contains("bad.csv:3") && err.contains("twice"), "{err}");
 }
+
+/// `dataset build --markers` builds and caches the LGI index, printing its statistics; the
+/// next run reads it back.
+#[test]
+fn dataset_build_caches_the_lgi_index() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cache = tmp.path().join("cache");
+    let markers = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/markers/builtin-actor.csv");
+    let args = [
+        "dataset",
+        "build",
+        "--dataset",
+        "builtin",
+        "--markers",
+        markers.to_str().unwrap(),
+    ];
+    let o = helmcap(&args, &cache);
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("tetrahedra kept of"), "{out}");
+    assert!(out.contains("written to"), "{out}");
+    let files: Vec<_> = std::fs::read_dir(&cache)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with("lgi-"))
+        .collect();
+    assert_eq!(files.len(), 1);
+    let o = helmcap(&args, &cache);
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("read from"), "{out}");
+    // A layout that does not fit the dataset: one clear error line.
+    let bad = tmp.path().join("bad.csv");
+    std::fs::write(&bad, "name,vertex,stabilize_weight\nM1,99999999,1\n").unwrap();
+    let o = helmcap(
+        &[
+            "dataset",
+            "build",
+            "-d",
+            "builtin",
+            "-k",
+            bad.to_str().unwrap(),
+        ],
+        &cache,
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("error:"));
+}

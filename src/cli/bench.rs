@@ -20,6 +20,9 @@ pub enum BenchCommand {
     },
     /// Time detail enhancement: precomputation, memory and per-frame time.
     Enhance(super::enhance::EnhanceBenchArgs),
+    /// Accuracy and speed of the solve methods on held-out performances (ICT-FaceKit
+    /// variants and the built-in actor): prints the Markdown table of the README.
+    Solve(SolveBenchArgs),
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -62,6 +65,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             println!("  from cache        {:8.1} ms", cached * 1e3);
         }
         BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
+        BenchCommand::Solve(a) => solve_bench(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {
@@ -75,6 +79,93 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
                 t * 1e3
             );
         }
+    }
+    Ok(())
+}
+
+/// Arguments of `helmcap bench solve`.
+#[derive(Debug, clap::Args)]
+pub struct SolveBenchArgs {
+    /// ICT-FaceKit manifest (its rows are skipped when the data is missing).
+    #[arg(
+        long,
+        default_value = "configs/datasets/ict-facekit.toml",
+        value_name = "MANIFEST"
+    )]
+    ict: PathBuf,
+    /// Marker layout for ICT (generated when unreadable).
+    #[arg(
+        long,
+        default_value = "configs/markers/ict-facekit.csv",
+        value_name = "CSV"
+    )]
+    ict_markers: PathBuf,
+    /// Marker layout for the built-in actor (generated when unreadable).
+    #[arg(
+        long,
+        default_value = "configs/markers/builtin-actor.csv",
+        value_name = "CSV"
+    )]
+    actor_markers: PathBuf,
+    /// Datasets to run: comma-separated substrings of their names ("all 53", "in-betweens",
+    /// "pairs", "symmetric", "actor"); default every dataset.
+    #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+    only: Vec<String>,
+    /// Methods to run (lgi, rbf, blendshape; comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "lgi,rbf,blendshape")]
+    methods: Vec<String>,
+    /// Static held-out frames per condition.
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Timed runs of every take (the median time per frame is reported).
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Half-width of LGI's centred smoothing for the `lgi+smooth` rows (0: no such rows).
+    #[arg(long, default_value_t = 2)]
+    smooth: usize,
+    /// LGI parameters file (TOML with the fields of LgiParams).
+    #[arg(long, value_name = "TOML")]
+    lgi_params: Option<PathBuf>,
+    /// Also write the table to this file (Markdown).
+    #[arg(long, value_name = "MD")]
+    out: Option<PathBuf>,
+}
+
+fn solve_bench(a: SolveBenchArgs) -> anyhow::Result<()> {
+    use helmcap::solve::benchmark::{BenchConfig, format_table, run_benchmark};
+    let methods = a
+        .methods
+        .iter()
+        .map(|m| m.trim().parse::<helmcap::solve::Method>())
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(anyhow::Error::msg)?;
+    let mut params = helmcap::solve::SolveParams::default();
+    if let Some(p) = &a.lgi_params {
+        let text =
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+        params.lgi = toml::from_str(&text)
+            .with_context(|| format!("{}: not LGI parameters", p.display()))?;
+        params.lgi.validate()?;
+    }
+    let config = BenchConfig {
+        frames: a.frames,
+        smooth: a.smooth,
+        runs: a.runs.max(1),
+        only: a.only.iter().map(|s| s.trim().to_string()).collect(),
+        methods,
+        params,
+        ict_manifest: Some(a.ict),
+        ict_layout: Some(a.ict_markers),
+        actor_layout: Some(a.actor_markers),
+    };
+    let rows = run_benchmark(&config).map_err(anyhow::Error::msg)?;
+    let table = format_table(&rows);
+    println!("{table}");
+    if let Some(out) = &a.out {
+        helmcap::atomic_file::write_atomically(out, |w| {
+            std::io::Write::write_all(w, table.as_bytes())
+        })
+        .with_context(|| format!("writing {}", out.display()))?;
     }
     Ok(())
 }

@@ -16,10 +16,19 @@ pub enum DatasetCommand {
         #[command(flatten)]
         dataset: DatasetArgs,
     },
-    /// Load a dataset and write its binary cache (later loads are fast).
+    /// Load a dataset and write its binary cache (later loads are fast); with --markers,
+    /// also build and cache its LGI index for that layout, printing the index statistics.
     Build {
         #[command(flatten)]
         dataset: DatasetArgs,
+        /// Marker layout CSV: build (or load) the LGI index for it and cache it, as
+        /// `helmcap solve` would.
+        #[arg(long, short = 'k', value_name = "CSV")]
+        markers: Option<PathBuf>,
+        /// LGI parameters file (TOML with the fields of LgiParams; only the index-building
+        /// ones matter here).
+        #[arg(long, value_name = "TOML", requires = "markers")]
+        lgi_params: Option<PathBuf>,
     },
     /// Write the built-in synthetic actor as a dataset: manifest.toml, OBJs, jaw weights.
     Synth {
@@ -35,7 +44,11 @@ pub enum DatasetCommand {
 pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
     match cmd {
         DatasetCommand::Info { dataset } => info(&dataset),
-        DatasetCommand::Build { dataset } => {
+        DatasetCommand::Build {
+            dataset,
+            markers,
+            lgi_params,
+        } => {
             let t = Instant::now();
             let ds = dataset.load()?;
             println!(
@@ -45,6 +58,9 @@ pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
                 ds.vertex_count(),
                 t.elapsed().as_secs_f64()
             );
+            if let Some(markers) = markers {
+                build_index(&dataset, &ds, &markers, lgi_params.as_deref())?;
+            }
             Ok(())
         }
         DatasetCommand::Synth { out, seed } => {
@@ -65,6 +81,58 @@ pub fn run(cmd: DatasetCommand) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// Builds (or loads) the LGI index of `ds` for the layout `markers` and caches it.
+fn build_index(
+    args: &DatasetArgs,
+    ds: &helmcap::dataset::Dataset,
+    markers: &std::path::Path,
+    lgi_params: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    use helmcap::lgi::cache::{IndexSource, cache_path, load_or_build};
+    let layout = helmcap::dataset::MarkerLayout::read_csv(markers)
+        .with_context(|| format!("reading markers {}", markers.display()))?;
+    layout
+        .validate_for(ds)
+        .with_context(|| format!("markers {} do not fit {}", markers.display(), ds.name))?;
+    let params = match lgi_params {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            toml::from_str::<helmcap::lgi::LgiParams>(&text)
+                .with_context(|| format!("{}: not LGI parameters", p.display()))?
+        }
+        None => helmcap::lgi::LgiParams::default(),
+    };
+    params.validate()?;
+    let dir = (!args.no_cache).then(|| {
+        args.cache_dir
+            .clone()
+            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
+    });
+    let t = Instant::now();
+    let (index, source) = load_or_build(ds, &layout, &params, dir.as_deref())?;
+    println!("{}", index.stats);
+    match (&dir, source) {
+        (Some(d), src) => {
+            let path = cache_path(d, ds, &layout, &params);
+            let size = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+            println!(
+                "LGI index {} {} ({:.1} MB, {:.2} s)",
+                if src == IndexSource::Cache {
+                    "read from"
+                } else {
+                    "written to"
+                },
+                path.display(),
+                size as f64 / 1e6,
+                t.elapsed().as_secs_f64()
+            );
+        }
+        (None, _) => println!("LGI index built, not cached (--no-cache)"),
+    }
+    Ok(())
 }
 
 fn info(args: &DatasetArgs) -> anyhow::Result<()> {

@@ -1,7 +1,6 @@
 //! `helmcap solve`: bundles CSV to one mesh per frame, by local geometric indexing or a
 //! baseline.
 
-use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -260,85 +259,11 @@ fn lgi_index(
     args: &SolveArgs,
 ) -> anyhow::Result<Arc<LgiIndex>> {
     let cache = (!args.no_index_cache && !args.dataset.no_cache).then(|| {
-        let dir = args
-            .dataset
+        args.dataset
             .cache_dir
             .clone()
-            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir);
-        dir.join(format!("lgi-{:016x}.bin", index_key(ds, layout, params)))
+            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
     });
-    if let Some(path) = &cache
-        && let Ok(bytes) = std::fs::read(path)
-    {
-        match bincode::deserialize::<LgiIndex>(&bytes) {
-            Ok(index) => {
-                tracing::info!("LGI index from cache {}", path.display());
-                return Ok(Arc::new(index));
-            }
-            Err(e) => tracing::warn!(
-                "ignoring unreadable LGI index cache {}: {e}",
-                path.display()
-            ),
-        }
-    }
-    let index = LgiIndex::build(ds, layout, params)?;
-    if let Some(path) = &cache {
-        let written = bincode::serialize(&index)
-            .map_err(std::io::Error::other)
-            .and_then(|bytes| {
-                if let Some(dir) = path.parent() {
-                    std::fs::create_dir_all(dir)?;
-                }
-                helmcap::atomic_file::write_atomically(path, |w| {
-                    std::io::Write::write_all(w, &bytes)
-                })
-            });
-        if let Err(e) = written {
-            tracing::warn!("could not write LGI index cache {}: {e}", path.display());
-        }
-    }
-    Ok(Arc::new(index))
-}
-
-/// Key of an index: everything it is built from (dataset positions and jaw, marker
-/// vertices, the parameters that shape the index).
-fn index_key(ds: &Dataset, layout: &MarkerLayout, params: &LgiParams) -> u64 {
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    "lgi-index-v1".hash(&mut h);
-    ds.vertex_count().hash(&mut h);
-    for p in ds
-        .neutral
-        .positions
-        .iter()
-        .chain(ds.shapes.iter().flat_map(|s| s.positions.iter()))
-    {
-        p.x.to_bits().hash(&mut h);
-        p.y.to_bits().hash(&mut h);
-        p.z.to_bits().hash(&mut h);
-    }
-    for s in &ds.shapes {
-        s.name.hash(&mut h);
-        format!("{:?}", s.jaw).hash(&mut h);
-    }
-    format!(
-        "{:?}",
-        ds.jaw
-            .as_ref()
-            .map(|j| (&j.pivot, &j.open_axis, &j.weights))
-    )
-    .hash(&mut h);
-    ds.face_vertices.hash(&mut h);
-    ds.neutral.uvs.len().hash(&mut h);
-    for m in &layout.markers {
-        m.vertex.hash(&mut h);
-    }
-    let p = LgiParams {
-        temporal_weight_mm: 0.0,
-        bundle_tolerance_mm: 0.0,
-        snap_to_bundles: true,
-        smoothing: TemporalParams::default(),
-        ..*params
-    };
-    format!("{p:?}").hash(&mut h);
-    h.finish()
+    let (index, _) = helmcap::lgi::cache::load_or_build(ds, layout, params, cache.as_deref())?;
+    Ok(index)
 }

@@ -37,6 +37,126 @@ pub fn triple_index(i: usize, j: usize, k: usize) -> usize {
 pub struct TripleTable {
     values: Vec<f64>,
     rel: Vec<nalgebra::Vector3<f64>>,
+    /// Sign codes of `values` ([`SIGN_POS`], [`SIGN_NEG`] or 0 near zero), filled by
+    /// [`TripleTable::fill_used_coded`].
+    codes: Vec<u8>,
+}
+
+/// Sign code of a triple value clearly above zero (see [`TetScan`]).
+pub const SIGN_POS: u8 = 1;
+/// Sign code of a triple value clearly below zero (see [`TetScan`]).
+pub const SIGN_NEG: u8 = 2;
+
+/// A compact form of a marker's tetrahedra for the per-frame containment scan: each
+/// tetrahedron's four face triples (16-bit when the cloud is small enough, so the scan
+/// streams 8 bytes per tetrahedron) and a sign mask. A tetrahedron can contain the query
+/// only if none of its face orientations has the wrong sign by more than `tolerance`;
+/// that pre-test reads one byte per face from [`TripleTable`]'s sign codes, and only the
+/// tetrahedra passing it get the exact test ([`TripleTable::inside`]). `tolerance` is
+/// twice `1e-9` times the largest `|det|` of the marker's tetrahedra, so every tetrahedron
+/// the exact test (slack `−1e-9` on the barycentric weights) accepts passes the pre-test:
+/// the scan finds exactly what a full scan finds, in the same order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TetScan {
+    /// Face triples as 16-bit indices (empty when `wide` is used).
+    narrow: Vec<[u16; 4]>,
+    /// Face triples as 32-bit indices (clouds with more than 65 536 triples).
+    wide: Vec<[u32; 4]>,
+    /// Per tetrahedron: the sign codes that rule out containment on its even faces (bits
+    /// 0–1) and odd faces (bits 2–3); 0 for a degenerate tetrahedron (always tested).
+    masks: Vec<u8>,
+    /// Orientation values within this of zero count as either sign.
+    pub tolerance: f64,
+}
+
+impl TetScan {
+    /// The scan form of tetrahedra with face triples `faces` and `inv_volume`
+    /// (`1 / det`, 0 when degenerate).
+    pub fn new(faces: &[[u32; 4]], inv_volume: &[f64]) -> Self {
+        let max_det = inv_volume
+            .iter()
+            .filter(|&&iv| iv != 0.0)
+            .map(|iv| (1.0 / iv).abs())
+            .fold(0.0, f64::max);
+        let masks = inv_volume
+            .iter()
+            .map(|&iv| {
+                if iv > 0.0 {
+                    // w0, w2 = +T · inv must not be negative; w1, w3 = −T · inv likewise.
+                    SIGN_NEG | (SIGN_POS << 2)
+                } else if iv < 0.0 {
+                    SIGN_POS | (SIGN_NEG << 2)
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let largest = faces.iter().flatten().copied().max().unwrap_or(0);
+        let (narrow, wide) = if largest <= u32::from(u16::MAX) {
+            let narrow = faces
+                .iter()
+                .map(|f| f.map(|x| u16::try_from(x).unwrap_or(u16::MAX)))
+                .collect();
+            (narrow, Vec::new())
+        } else {
+            (Vec::new(), faces.to_vec())
+        };
+        Self {
+            narrow,
+            wide,
+            masks,
+            tolerance: 2e-9 * max_det,
+        }
+    }
+
+    /// Number of tetrahedra.
+    pub fn len(&self) -> usize {
+        self.masks.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.masks.is_empty()
+    }
+
+    /// Whether tetrahedron `t` passes the sign pre-test against `codes`.
+    #[inline]
+    pub fn may_contain(&self, codes: &[u8], t: usize) -> bool {
+        let m = self.masks[t];
+        let f = if self.wide.is_empty() {
+            self.narrow[t].map(usize::from)
+        } else {
+            self.wide[t].map(|x| x as usize)
+        };
+        sign_ok(codes, f, m)
+    }
+
+    /// Calls `hit` with every tetrahedron passing the pre-test against `codes`, ascending.
+    #[inline]
+    pub fn for_each_candidate(&self, codes: &[u8], mut hit: impl FnMut(usize)) {
+        if self.wide.is_empty() {
+            for (t, (f, &m)) in self.narrow.iter().zip(&self.masks).enumerate() {
+                if sign_ok(codes, f.map(usize::from), m) {
+                    hit(t);
+                }
+            }
+        } else {
+            for (t, (f, &m)) in self.wide.iter().zip(&self.masks).enumerate() {
+                if sign_ok(codes, f.map(|x| x as usize), m) {
+                    hit(t);
+                }
+            }
+        }
+    }
+}
+
+/// The sign pre-test of one tetrahedron (see [`TetScan`]).
+#[inline(always)]
+fn sign_ok(codes: &[u8], f: [usize; 4], mask: u8) -> bool {
+    let c = |i: usize| codes.get(i).copied().unwrap_or(0);
+    let even = (c(f[0]) | c(f[2])) & mask;
+    let odd = (c(f[1]) | c(f[3])) & (mask >> 2);
+    even | odd == 0
 }
 
 impl TripleTable {
@@ -74,6 +194,52 @@ impl TripleTable {
             let (i, j, k) = (i as usize, j as usize, k as usize);
             self.values[idx as usize] = self.rel[i].dot(&self.rel[j].cross(&self.rel[k]));
         }
+    }
+
+    /// [`TripleTable::fill_used`], and the sign codes of the filled values: [`SIGN_POS`]
+    /// above `tolerance`, [`SIGN_NEG`] below `−tolerance`, else 0 (see [`TetScan`]).
+    pub fn fill_used_coded(
+        &mut self,
+        points: &[Point3<f64>],
+        x: &Point3<f64>,
+        used: &[(u32, [u16; 3])],
+        tolerance: f64,
+    ) {
+        let n = points.len();
+        self.rel.clear();
+        self.rel.extend(points.iter().map(|p| p - x));
+        let size = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
+        if self.values.len() != size {
+            self.values.clear();
+            self.values.resize(size, 0.0);
+        }
+        if self.codes.len() != size {
+            self.codes.clear();
+            self.codes.resize(size, 0);
+        }
+        // Triples come sorted by index, i.e. grouped by (k, j): one cross product per group.
+        let mut jk = (u16::MAX, u16::MAX);
+        let mut cross = nalgebra::Vector3::zeros();
+        for &(idx, [i, j, k]) in used {
+            if (j, k) != jk {
+                jk = (j, k);
+                cross = self.rel[j as usize].cross(&self.rel[k as usize]);
+            }
+            let v = self.rel[i as usize].dot(&cross);
+            self.values[idx as usize] = v;
+            self.codes[idx as usize] = if v > tolerance {
+                SIGN_POS
+            } else if v < -tolerance {
+                SIGN_NEG
+            } else {
+                0
+            };
+        }
+    }
+
+    /// The sign codes of the last [`TripleTable::fill_used_coded`].
+    pub fn codes(&self) -> &[u8] {
+        &self.codes
     }
 
     /// The four face triples of tetrahedron `t` (corners ascending) in the order the
@@ -379,6 +545,78 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The sign pre-test passes every tetrahedron the exact test accepts.
+    #[test]
+    fn scan_pretest_keeps_every_containing_tet() {
+        let mut pts = Vec::new();
+        for i in 0..9u32 {
+            let f = f64::from(i);
+            pts.push(Point3::new(
+                (f * 1.7).sin() * 3.0,
+                (f * 2.3).cos() * 2.0,
+                (f * 0.9).sin() * (f * 0.4).cos() * 4.0,
+            ));
+        }
+        // Some points coplanar with others, so values near zero occur.
+        pts.push(Point3::from((pts[0].coords + pts[1].coords) * 0.5));
+        let mut tets = Vec::new();
+        for a in 0..pts.len() as u16 {
+            for b in a + 1..pts.len() as u16 {
+                for c in b + 1..pts.len() as u16 {
+                    for d in c + 1..pts.len() as u16 {
+                        tets.push([a, b, c, d]);
+                    }
+                }
+            }
+        }
+        let faces: Vec<[u32; 4]> = tets.iter().map(TripleTable::faces).collect();
+        let inv: Vec<f64> = tets
+            .iter()
+            .map(|t| {
+                let o = orient(
+                    &pts[t[0] as usize],
+                    &pts[t[1] as usize],
+                    &pts[t[2] as usize],
+                    &pts[t[3] as usize],
+                );
+                if o != 0.0 { 1.0 / o } else { 0.0 }
+            })
+            .collect();
+        let scan = TetScan::new(&faces, &inv);
+        let used = used_triples(&tets);
+        let mut table = TripleTable::default();
+        let (mut found, mut pruned) = (0, 0);
+        for q in 0..200u32 {
+            let f = f64::from(q);
+            // Queries include the points themselves and points on faces.
+            let x = if q % 10 == 0 {
+                pts[(q / 10) as usize % pts.len()]
+            } else {
+                Point3::new(
+                    (f * 0.37).sin() * 3.0,
+                    (f * 0.71).cos() * 2.0,
+                    (f * 0.13).sin(),
+                )
+            };
+            table.fill_used_coded(&pts, &x, &used, scan.tolerance);
+            let mut fast = Vec::new();
+            scan.for_each_candidate(table.codes(), |t| {
+                if table.inside(&faces[t], inv[t], -1e-9).is_some() {
+                    fast.push(t);
+                }
+            });
+            let full: Vec<usize> = (0..tets.len())
+                .filter(|&t| table.inside(&faces[t], inv[t], -1e-9).is_some())
+                .collect();
+            assert_eq!(fast, full, "query {q}");
+            found += full.len();
+            let mut cands = 0;
+            scan.for_each_candidate(table.codes(), |_| cands += 1);
+            pruned += tets.len() - cands;
+        }
+        assert!(found > 0 && pruned > 0, "{found} found, {pruned} pruned");
     }
 
     #[test]

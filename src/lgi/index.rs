@@ -28,6 +28,7 @@ pub struct MarkerIndex {
     pub variant_point: Vec<u16>,
     /// The marker's own position in each variant's shape (within the merge tolerance of
     /// its point), mm: what the candidate surface passes through.
+    #[serde(skip)]
     pub variant_position: Vec<Point3<f64>>,
     /// Patch deformation of each variant's shape (RMS displacement), mm: the tie-break.
     pub deformation_mm: Vec<f64>,
@@ -35,30 +36,146 @@ pub struct MarkerIndex {
     pub simplices: Simplices,
     /// `1 / det[b − a, c − a, d − a]` of each tetrahedron (see
     /// [`super::barycentric::TripleTable`]).
+    #[serde(skip)]
     pub inv_volume: Vec<f64>,
     /// Face triples of each tetrahedron ([`super::barycentric::TripleTable::faces`]).
+    #[serde(skip)]
     pub faces: Vec<[u32; 4]>,
+    /// Compact form of the tetrahedra for the containment scan (derived).
+    #[serde(skip)]
+    pub scan: super::barycentric::TetScan,
     /// `1 / (2 · area)` of every triple's triangle (for distances to face planes).
+    #[serde(skip)]
     pub triple_inv_area2: Vec<f64>,
     /// The face triples the tetrahedra use (see [`super::barycentric::used_triples`]).
+    #[serde(skip)]
     pub used_triples: Vec<(u32, [u16; 3])>,
     /// Grid over the tetrahedra (`None` below dimension 3).
+    #[serde(skip)]
     pub grid: Option<TetGrid>,
     /// Convex hull triangles of the points (empty below dimension 3).
     pub hull: Vec<[u16; 3]>,
     /// For each hull triangle, the tetrahedra having it as a face.
+    #[serde(skip)]
     pub hull_tets: Vec<Vec<u32>>,
     /// Neighbouring markers (Delaunay neighbours in UV space).
     pub neighbors: Vec<u32>,
     /// `variants × neighbors` positions of each neighbour's vertex in each variant's shape.
+    #[serde(skip)]
     pub neighbor_positions: Vec<Point3<f64>>,
     /// Vertices this marker blends into, with their weights (all markers present).
     pub support: Vec<(u32, f64)>,
-    /// `variants × support` displacement of each support vertex in each variant's shape.
+    /// The support entries in blending order (derived): first the `moving` vertices that
+    /// some variant's shape displaces, then those none does (they only take the residual).
+    #[serde(skip)]
+    pub blend: Vec<(u32, f64)>,
+    /// Number of leading `blend` entries that some variant displaces (derived).
+    #[serde(skip)]
+    pub moving: usize,
+    /// `variants × moving` displacement of each moving `blend` vertex in each variant's
+    /// shape (derived).
+    #[serde(skip)]
     pub patch: Vec<Vector3<f64>>,
 }
 
 impl MarkerIndex {
+    /// Computes the fields derived from the stored ones (everything marked "derived"):
+    /// tetrahedron volumes and faces, the grid, the hull's tetrahedra, and the variants'
+    /// positions and patches copied out of the dataset's `displacements` for locality.
+    /// Used by the build and when an index is read back from its cache.
+    fn derive(
+        &mut self,
+        neutral: &[Point3<f64>],
+        displacements: &[Vec<Vector3<f64>>],
+        marker_vertices: &[u32],
+        grid_entries_per_tet: f64,
+    ) {
+        let dim3 = self.simplices.dim == 3;
+        let points = &self.points;
+        let corners = &self.simplices.corners;
+        if dim3 {
+            self.inv_volume = corners
+                .iter()
+                .map(|c| {
+                    let o = super::barycentric::orient(
+                        &points[c[0] as usize],
+                        &points[c[1] as usize],
+                        &points[c[2] as usize],
+                        &points[c[3] as usize],
+                    );
+                    if o != 0.0 { 1.0 / o } else { 0.0 }
+                })
+                .collect();
+            let budget = (grid_entries_per_tet * corners.len() as f64) as usize;
+            self.grid = Some(TetGrid::build(points, corners, budget));
+            self.faces = corners
+                .iter()
+                .map(super::barycentric::TripleTable::faces)
+                .collect();
+            self.used_triples = super::barycentric::used_triples(corners);
+            self.scan = super::barycentric::TetScan::new(&self.faces, &self.inv_volume);
+            self.triple_inv_area2 = super::barycentric::triple_inv_area2(points);
+        } else {
+            self.inv_volume = Vec::new();
+            self.grid = None;
+            self.faces = Vec::new();
+            self.used_triples = Vec::new();
+            self.scan = Default::default();
+            self.triple_inv_area2 = Vec::new();
+        }
+        self.hull_tets = {
+            let mut of: std::collections::HashMap<u32, usize> = Default::default();
+            for (h, f) in self.hull.iter().enumerate() {
+                let idx =
+                    super::barycentric::triple_index(f[0] as usize, f[1] as usize, f[2] as usize)
+                        as u32;
+                of.insert(idx, h);
+            }
+            let mut lists = vec![Vec::new(); self.hull.len()];
+            for (t, fs) in self.faces.iter().enumerate() {
+                for f in fs {
+                    if let Some(&h) = of.get(f) {
+                        lists[h].push(t as u32);
+                    }
+                }
+            }
+            lists
+        };
+        let disp_of = |shape: Option<u32>, vertex: u32| -> Vector3<f64> {
+            shape.map_or_else(Vector3::zeros, |s| {
+                displacements[s as usize][vertex as usize]
+            })
+        };
+        let v = self.vertex;
+        self.variant_position = self
+            .shapes
+            .iter()
+            .map(|&s| neutral[v as usize] + disp_of(s, v))
+            .collect();
+        let mut neighbor_positions = Vec::with_capacity(self.shapes.len() * self.neighbors.len());
+        let (mut blend, still): (Vec<_>, Vec<_>) = self.support.iter().partition(|&&(sv, _)| {
+            self.shapes
+                .iter()
+                .any(|&s| disp_of(s, sv) != Vector3::zeros())
+        });
+        let moving = blend.len();
+        blend.extend(still);
+        let mut patch = Vec::with_capacity(self.shapes.len() * moving);
+        for &s in &self.shapes {
+            for &k in &self.neighbors {
+                let kv = marker_vertices[k as usize];
+                neighbor_positions.push(neutral[kv as usize] + disp_of(s, kv));
+            }
+            for &(sv, _) in &blend[..moving] {
+                patch.push(disp_of(s, sv));
+            }
+        }
+        self.blend = blend;
+        self.moving = moving;
+        self.neighbor_positions = neighbor_positions;
+        self.patch = patch;
+    }
+
     /// Positions of the given corner points.
     pub fn corners_of(&self, c: &[u16; 4]) -> [Point3<f64>; 4] {
         [
@@ -145,7 +262,12 @@ struct BuiltMarker {
 }
 
 /// The precomputed index of a dataset for a marker layout.
+///
+/// Serialized (the index cache, [`super::cache`]) without what is cheap to recompute: the
+/// fields of [`MarkerIndex`] marked "derived" are rebuilt on deserialization, with the
+/// same arithmetic as the build, so a cached index solves bit for bit like a fresh one.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(from = "StoredIndex")]
 pub struct LgiIndex {
     /// Per-marker indices, in layout order.
     pub markers: Vec<MarkerIndex>,
@@ -159,6 +281,44 @@ pub struct LgiIndex {
     pub jaw: Option<JawSpace>,
     /// Build statistics.
     pub stats: IndexStats,
+    /// The parameters the index was built with (only the build-time fields matter).
+    pub params: LgiParams,
+}
+
+/// The serialized part of [`LgiIndex`] (same fields, same order).
+#[derive(serde::Deserialize)]
+struct StoredIndex {
+    markers: Vec<MarkerIndex>,
+    weights: NaturalNeighborWeights,
+    neutral: Vec<Point3<f64>>,
+    displacements: Vec<Vec<Vector3<f64>>>,
+    jaw: Option<JawSpace>,
+    stats: IndexStats,
+    params: LgiParams,
+}
+
+impl From<StoredIndex> for LgiIndex {
+    fn from(s: StoredIndex) -> Self {
+        let mut markers = s.markers;
+        let marker_vertices: Vec<u32> = markers.iter().map(|m| m.vertex).collect();
+        markers.par_iter_mut().for_each(|mi| {
+            mi.derive(
+                &s.neutral,
+                &s.displacements,
+                &marker_vertices,
+                s.params.grid_entries_per_tet,
+            );
+        });
+        Self {
+            markers,
+            weights: s.weights,
+            neutral: s.neutral,
+            displacements: s.displacements,
+            jaw: s.jaw,
+            stats: s.stats,
+            params: s.params,
+        }
+    }
 }
 
 /// The jaw data of an unskinned index (Cong et al. 2019 §6).
@@ -241,33 +401,6 @@ impl LgiIndex {
                     params.max_tet_edge_mm,
                     params.max_tets_per_marker,
                 );
-                let (inv_volume, grid) = if simplices.dim == 3 {
-                    let inv: Vec<f64> = simplices
-                        .corners
-                        .iter()
-                        .map(|c| {
-                            let p = [
-                                cloud.points[c[0] as usize],
-                                cloud.points[c[1] as usize],
-                                cloud.points[c[2] as usize],
-                                cloud.points[c[3] as usize],
-                            ];
-                            let o = super::barycentric::orient(&p[0], &p[1], &p[2], &p[3]);
-                            if o != 0.0 { 1.0 / o } else { 0.0 }
-                        })
-                        .collect();
-                    let budget =
-                        (params.grid_entries_per_tet * simplices.corners.len() as f64) as usize;
-                    let g = TetGrid::build(&cloud.points, &simplices.corners, budget);
-                    (inv, Some(g))
-                } else {
-                    (Vec::new(), None)
-                };
-                let disp_of = |shape: Option<u32>, vertex: u32| -> Vector3<f64> {
-                    shape.map_or_else(Vector3::zeros, |s| {
-                        displacements[s as usize][vertex as usize]
-                    })
-                };
                 let neighbors = weights.neighbors[m].clone();
                 let mut point_variants = vec![0u32];
                 let mut shapes = Vec::new();
@@ -281,94 +414,48 @@ impl LgiIndex {
                     }
                     point_variants.push(shapes.len() as u32);
                 }
-                let variant_position: Vec<Point3<f64>> = shapes
-                    .iter()
-                    .map(|&s| neutral[v as usize] + disp_of(s, v))
-                    .collect();
-                let mut neighbor_positions = Vec::with_capacity(shapes.len() * neighbors.len());
-                let mut patch = Vec::with_capacity(shapes.len() * support[m].len());
-                for &s in &shapes {
-                    for &k in &neighbors {
-                        let kv = marker_vertices[k as usize];
-                        neighbor_positions.push(neutral[kv as usize] + disp_of(s, kv));
-                    }
-                    for &(sv, _) in &support[m] {
-                        patch.push(disp_of(s, sv));
-                    }
-                }
                 let lower_dim = simplices.dim < 3;
-                let faces: Vec<[u32; 4]> = if simplices.dim == 3 {
-                    simplices
-                        .corners
-                        .iter()
-                        .map(super::barycentric::TripleTable::faces)
-                        .collect()
-                } else {
-                    Vec::new()
-                };
-                let used_triples = if simplices.dim == 3 {
-                    super::barycentric::used_triples(&simplices.corners)
-                } else {
-                    Vec::new()
-                };
                 let hull = if simplices.dim == 3 {
                     super::hull::hull_faces(&cloud.points)
                 } else {
                     Vec::new()
                 };
-                let hull_tets: Vec<Vec<u32>> = {
-                    let mut of: std::collections::HashMap<u32, usize> = Default::default();
-                    for (h, f) in hull.iter().enumerate() {
-                        let idx = super::barycentric::triple_index(
-                            f[0] as usize,
-                            f[1] as usize,
-                            f[2] as usize,
-                        ) as u32;
-                        of.insert(idx, h);
-                    }
-                    let mut lists = vec![Vec::new(); hull.len()];
-                    for (t, fs) in faces.iter().enumerate() {
-                        for f in fs {
-                            if let Some(&h) = of.get(f) {
-                                lists[h].push(t as u32);
-                            }
-                        }
-                    }
-                    lists
+                let mut index = MarkerIndex {
+                    vertex: v,
+                    points: cloud.points,
+                    point_variants,
+                    shapes,
+                    variant_point,
+                    variant_position: Vec::new(),
+                    deformation_mm,
+                    simplices,
+                    inv_volume: Vec::new(),
+                    faces: Vec::new(),
+                    scan: Default::default(),
+                    triple_inv_area2: Vec::new(),
+                    used_triples: Vec::new(),
+                    grid: None,
+                    hull,
+                    hull_tets: Vec::new(),
+                    neighbors,
+                    neighbor_positions: Vec::new(),
+                    support: support[m].clone(),
+                    blend: Vec::new(),
+                    moving: 0,
+                    patch: Vec::new(),
                 };
-                let triple_inv_area2 = if simplices.dim == 3 {
-                    super::barycentric::triple_inv_area2(&cloud.points)
-                } else {
-                    Vec::new()
-                };
-                let still = cloud.still;
-                let merged = cloud.merged;
-                let grid_entries = grid.as_ref().map_or(0, TetGrid::entries);
+                index.derive(
+                    &neutral,
+                    &displacements,
+                    &marker_vertices,
+                    params.grid_entries_per_tet,
+                );
+                let grid_entries = index.grid.as_ref().map_or(0, TetGrid::entries);
                 BuiltMarker {
-                    index: MarkerIndex {
-                        vertex: v,
-                        points: cloud.points,
-                        point_variants,
-                        shapes,
-                        variant_point,
-                        variant_position,
-                        deformation_mm,
-                        simplices,
-                        faces,
-                        triple_inv_area2,
-                        used_triples,
-                        inv_volume,
-                        hull_tets,
-                        hull,
-                        grid,
-                        neighbors,
-                        neighbor_positions,
-                        support: support[m].clone(),
-                        patch,
-                    },
+                    index,
                     tets: tstats,
-                    still,
-                    merged,
+                    still: cloud.still,
+                    merged: cloud.merged,
                     lower_dim,
                     grid_entries,
                 }
@@ -403,6 +490,7 @@ impl LgiIndex {
             displacements,
             jaw,
             stats,
+            params: *params,
         })
     }
 }

@@ -43,6 +43,7 @@
 //! Depends on [`crate::mesh`], [`crate::dataset`] and [`crate::bundles`].
 
 pub mod barycentric;
+pub mod cache;
 pub mod grid;
 pub mod hull;
 pub mod index;
@@ -537,13 +538,12 @@ impl LgiSolver {
             if !present[m] {
                 continue;
             }
-            let ns = mi.support.len();
+            let ns = mi.moving;
             let pts = &weights.markers[m].points;
             let r = residual[m];
-            for (s, &(v, lam)) in mi.support.iter().enumerate() {
-                if let Some(mw) = &missing
-                    && mw.affected[v as usize]
-                {
+            let affected = missing.as_ref().map(|mw| &mw.affected);
+            for (s, &(v, lam)) in mi.blend[..ns].iter().enumerate() {
+                if affected.is_some_and(|a| a[v as usize]) {
                     continue;
                 }
                 let mut d = r;
@@ -551,6 +551,13 @@ impl LgiSolver {
                     d += mi.patch[j as usize * ns + s] * w;
                 }
                 acc[v as usize] += d * lam;
+            }
+            // Vertices no variant displaces: only the residual (their patch terms are 0).
+            for &(v, lam) in &mi.blend[ns..] {
+                if affected.is_some_and(|a| a[v as usize]) {
+                    continue;
+                }
+                acc[v as usize] += r * lam;
             }
         }
         if let Some(mw) = &missing {

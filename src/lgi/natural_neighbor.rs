@@ -233,13 +233,24 @@ impl NaturalNeighborWeights {
         let tri = triangulate(&self.marker_uv, present)?;
         let nn = tri.natural_neighbor();
         let mut buf = Vec::new();
-        Ok(vertices
-            .iter()
-            .map(|&v| {
-                let s = self.source[v as usize] as usize;
-                weights_at(&tri, &nn, self.uv[s], &mut buf)
-            })
-            .collect())
+        // Many vertices copy the same source (the non-face parts of the head): one query
+        // per distinct source.
+        let mut done: std::collections::HashMap<u32, usize> = Default::default();
+        let mut out: Vec<Vec<(u32, f64)>> = Vec::with_capacity(vertices.len());
+        for &v in vertices {
+            let s = self.source[v as usize];
+            match done.get(&s) {
+                Some(&k) => {
+                    let w = out[k].clone();
+                    out.push(w);
+                }
+                None => {
+                    done.insert(s, out.len());
+                    out.push(weights_at(&tri, &nn, self.uv[s as usize], &mut buf));
+                }
+            }
+        }
+        Ok(out)
     }
 }
 

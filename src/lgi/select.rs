@@ -61,6 +61,10 @@ pub struct Scratch {
     gram: Vec<f64>,
     /// Variant representing each point in this frame.
     rep: Vec<u32>,
+    /// Deformation of each point's representative.
+    deform: Vec<f64>,
+    /// Whether each point is a corner of the previous frame's choice.
+    in_previous: Vec<bool>,
     /// Orientations of the query against every triple of points.
     table: TripleTable,
     /// Tetrahedra containing (or near) the query, with its barycentric coordinates and
@@ -147,27 +151,57 @@ pub fn choose(
             }
         }
     }
+    // Per point: its representative's deformation (the tie-break) and whether the previous
+    // frame's choice used it (the temporal preference).
+    scratch.deform.clear();
+    scratch
+        .deform
+        .extend(scratch.rep.iter().map(|&r| mi.deformation_mm[r as usize]));
+    scratch.in_previous.clear();
+    scratch.in_previous.resize(np, false);
+    if let Some(prev) = previous {
+        for &c in &prev[..=dim] {
+            if let Some(f) = scratch.in_previous.get_mut(c as usize) {
+                *f = true;
+            }
+        }
+    }
     let gram = &scratch.gram;
-    let rep = &scratch.rep;
+    let deform_of = &scratch.deform;
+    let in_previous = &scratch.in_previous;
     let score = |corners: &[u16; 4], w: &[f64; 4], self_d2: f64| -> f64 {
+        let c = corners.map(usize::from);
         let mut q = 0.0;
-        for a in 0..=dim {
-            let ra = corners[a] as usize * np;
-            for b in 0..=dim {
-                q += w[a] * w[b] * gram[ra + corners[b] as usize];
+        let mut deform = 0.0;
+        let mut shared = 0usize;
+        if dim == 3 {
+            // The common case, unrolled (same arithmetic, same order as below).
+            for a in 0..4 {
+                let row = &gram[c[a] * np..(c[a] + 1) * np];
+                for b in 0..4 {
+                    q += w[a] * w[b] * row[c[b]];
+                }
+            }
+            for a in 0..4 {
+                deform += w[a] * deform_of[c[a]];
+                shared += usize::from(in_previous[c[a]]);
+            }
+        } else {
+            for a in 0..=dim {
+                let row = &gram[c[a] * np..(c[a] + 1) * np];
+                for b in 0..=dim {
+                    q += w[a] * w[b] * row[c[b]];
+                }
+            }
+            for a in 0..=dim {
+                deform += w[a] * deform_of[c[a]];
+                shared += usize::from(in_previous[c[a]]);
             }
         }
         let mut cost = (q.max(0.0) + self_d2).sqrt();
-        if let Some(prev) = previous {
-            let shared = corners[..=dim]
-                .iter()
-                .filter(|c| prev[..=dim].contains(c))
-                .count();
+        if previous.is_some() {
             cost += params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64;
         }
-        let deform: f64 = (0..=dim)
-            .map(|c| w[c] * mi.deformation_mm[rep[corners[c] as usize] as usize])
-            .sum();
         cost + TIE_BREAK * deform
     };
 
@@ -196,7 +230,7 @@ pub fn choose(
                     inside: bool,
                     self_d2: f64,
                     tol: f64| {
-            table.fill_used(&mi.points, y, &mi.used_triples);
+            table.fill_used_coded(&mi.points, y, &mi.used_triples, mi.scan.tolerance);
             hits.clear();
             collect_containing(mi, grid, table, y, inside, tol, hits);
             for &(t, mut w, d) in hits.iter() {
@@ -406,20 +440,24 @@ fn collect_containing(
         }
         return;
     }
+    // The sign pre-test (see `TetScan`) passes every tetrahedron the exact test accepts.
+    let codes = table.codes();
     let cell = grid.candidates(y);
     if cell.len() * 2 < all {
         for &t in cell {
             let t = t as usize;
-            if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
+            if mi.scan.may_contain(codes, t)
+                && let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK)
+            {
                 hits.push((t as u32, w, 0.0));
             }
         }
     } else if grid.contains(y) || !strict {
-        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
-            if let Some(w) = table.inside(f, iv, INSIDE_SLACK) {
+        mi.scan.for_each_candidate(codes, |t| {
+            if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
                 hits.push((t as u32, w, 0.0));
             }
-        }
+        });
     }
 }
 
