@@ -20,6 +20,20 @@ pub enum BenchCommand {
     },
     /// Time detail enhancement: precomputation, memory and per-frame time.
     Enhance(super::enhance::EnhanceBenchArgs),
+    /// Time example-based rigging (Li et al. 2010): setup, and each alternation of steps A
+    /// and B (median over the alternations).
+    Rig {
+        /// Template dataset manifest, or `builtin[:SEED]`.
+        #[arg(long, short = 'd', default_value = "configs/datasets/ict-facekit.toml")]
+        dataset: String,
+        /// Number of synthetic example poses (each 3 random blendshapes at random weights,
+        /// on a smoothly warped copy of the template neutral).
+        #[arg(long, default_value_t = 14)]
+        examples: usize,
+        /// Number of timed alternations.
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+    },
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -62,6 +76,11 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             println!("  from cache        {:8.1} ms", cached * 1e3);
         }
         BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
+        BenchCommand::Rig {
+            dataset,
+            examples,
+            runs,
+        } => bench_rig(&dataset, examples, runs)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {
@@ -98,4 +117,89 @@ fn tempfile_dir() -> anyhow::Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     Ok(dir)
+}
+
+/// `helmcap bench rig`.
+fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
+    use helmcap::rig::{Example, RigBuilder, RigParams};
+    let template = super::DatasetArgs {
+        dataset: dataset.to_string(),
+        no_cache: false,
+        cache_dir: None,
+    }
+    .load()?;
+    let n = template.shapes.len();
+    let a0 = &template.neutral.positions;
+    // The "actor": the template neutral under a smooth non-rigid warp (a few mm).
+    let neutral: Vec<nalgebra::Point3<f64>> = a0
+        .iter()
+        .map(|p| {
+            nalgebra::Point3::new(
+                p.x * 1.03 + 0.5 * (p.y * 0.05).sin(),
+                p.y * 0.98 + 0.5 * (p.z * 0.04).cos(),
+                p.z * 1.01 + 0.5 * (p.x * 0.06).sin(),
+            )
+        })
+        .collect();
+    let mut seed = 17u64;
+    let mut next = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let examples: Vec<Example> = (0..count)
+        .map(|j| {
+            let mut w = vec![0.0; n];
+            for _ in 0..3 {
+                let i = ((next() * n as f64) as usize).min(n - 1);
+                w[i] = 0.4 + 0.6 * next();
+            }
+            let mut positions = neutral.clone();
+            for (i, &wi) in w.iter().enumerate() {
+                if wi > 0.0 {
+                    for ((p, s), a) in positions
+                        .iter_mut()
+                        .zip(&template.shapes[i].positions)
+                        .zip(a0)
+                    {
+                        *p += (s - a) * wi;
+                    }
+                }
+            }
+            let initial_weights = w.iter().map(|&x| if x > 0.0 { 0.7 } else { 0.0 }).collect();
+            Example {
+                name: format!("example{j}"),
+                positions,
+                initial_weights,
+            }
+        })
+        .collect();
+    let params = RigParams {
+        alternations: runs.max(1),
+        ..RigParams::default()
+    };
+    let t = Instant::now();
+    let builder = RigBuilder::new(&template, &neutral, &params)?;
+    let setup = t.elapsed().as_secs_f64();
+    let mut times = Vec::new();
+    let rig = builder.build(&examples, &[], &mut |r| times.push(r.seconds))?;
+    times.sort_by(f64::total_cmp);
+    let worst = rig.fits.iter().map(|f| f.vertex_rms_mm).fold(0.0, f64::max);
+    println!(
+        "rig: {} vertices, {} triangles, {n} blendshapes, {count} examples",
+        template.vertex_count(),
+        template.neutral.triangles.len()
+    );
+    println!("  setup (frames, targets, {n} factorizations) {setup:8.2} s");
+    println!(
+        "  per alternation, median of {}            {:8.2} s",
+        times.len(),
+        times[times.len() / 2]
+    );
+    println!(
+        "  worst example fit after {} alternations   {worst:8.3} mm RMS",
+        times.len()
+    );
+    Ok(())
 }
