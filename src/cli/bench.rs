@@ -183,8 +183,25 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
     let builder = RigBuilder::new(&template, &neutral, &params)?;
     let setup = t.elapsed().as_secs_f64();
     let mut times = Vec::new();
-    let rig = builder.build(&examples, &[], &mut |r| times.push(r.seconds))?;
+    let mut parts = Vec::new();
+    let mut cpu = Vec::new();
+    let mut cpu_before = process_cpu_seconds();
+    let rig = builder.build(&examples, &[], &mut |r| {
+        times.push(r.seconds);
+        parts.push(r.step_seconds);
+        let now = process_cpu_seconds();
+        if let (Some(a), Some(b)) = (cpu_before, now) {
+            cpu.push(b - a);
+        }
+        cpu_before = now;
+    })?;
     times.sort_by(f64::total_cmp);
+    cpu.sort_by(f64::total_cmp);
+    let median_part = |k: usize| {
+        let mut v: Vec<f64> = parts.iter().map(|p| p[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
     let worst = rig.fits.iter().map(|f| f.vertex_rms_mm).fold(0.0, f64::max);
     println!(
         "rig: {} vertices, {} triangles, {n} blendshapes, {count} examples",
@@ -198,8 +215,32 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
         times[times.len() / 2]
     );
     println!(
+        "    step A frames {:.2} s, reconstruction {:.2} s, step B weights {:.2} s",
+        median_part(0),
+        median_part(1),
+        median_part(2)
+    );
+    if !cpu.is_empty() {
+        println!(
+            "  CPU time per alternation, median           {:8.2} s (all threads)",
+            cpu[cpu.len() / 2]
+        );
+    }
+    println!(
         "  worst example fit after {} alternations   {worst:8.3} mm RMS",
         times.len()
     );
     Ok(())
+}
+
+/// CPU time (user + system, all threads) of this process so far, from /proc/self/stat
+/// (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start after the last ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
 }

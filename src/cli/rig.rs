@@ -18,9 +18,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use clap::Subcommand;
-use helmcap::dataset::{Dataset, Units, write_dataset};
+use helmcap::dataset::markers::{LayoutParams, generate_layout};
+use helmcap::dataset::{Dataset, MarkerLayout, Units, write_dataset};
 use helmcap::mesh::read_obj_positions;
-use helmcap::rig::{Example, IterationReport, RigBuilder, RigParams};
+use helmcap::rig::{
+    Combination, Example, FromLgiParams, IterationReport, RigBuilder, RigParams, rig_from_lgi,
+};
 use nalgebra::Point3;
 
 use super::DatasetArgs;
@@ -30,6 +33,34 @@ pub enum RigCommand {
     /// Example-based rigging (Li et al. 2010): actor blendshapes from a template rig, the
     /// actor's neutral and a few example poses with rough weights.
     Build(BuildArgs),
+    /// Rig generation with local geometric indexing (Cong et al. 2019 §7): the template's
+    /// blendshapes (and combinations) transferred to the actor, sampled at the markers and
+    /// reconstructed from the actor's own dataset.
+    FromLgi(FromLgiArgs),
+}
+
+/// Arguments of `helmcap rig from-lgi`.
+#[derive(Debug, clap::Args)]
+pub struct FromLgiArgs {
+    /// Template rig in the actor's topology (dataset manifest or `builtin[:SEED]`), e.g.
+    /// registered to the actor's neutral with `helmcap register`.
+    #[arg(long, value_name = "MANIFEST")]
+    pub template: String,
+    /// The actor's dataset (its captured shapes are the LGI database; its neutral is B₀).
+    #[command(flatten)]
+    pub dataset: DatasetArgs,
+    /// Marker layout CSV on the actor's neutral (default: one generated for the dataset
+    /// with the default layout parameters, as `helmcap markers generate` does).
+    #[arg(long, value_name = "CSV")]
+    pub layout: Option<PathBuf>,
+    /// Combinations to reconstruct as corrective shapes: `none`, `all` (every pair of
+    /// template shapes), or a comma-separated list like `mouthSmile_L+mouthSmile_R,jawOpen+mouthFunnel`
+    /// (a term may carry a weight: `jawOpen*0.5+mouthFunnel`).
+    #[arg(long, default_value = "none")]
+    pub combinations: String,
+    /// Output folder: the rig as a dataset (manifest.toml, neutral.obj, shapes/*.obj).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
 }
 
 /// Arguments of `helmcap rig build`.
@@ -87,6 +118,7 @@ struct ExampleEntry {
 pub fn run(cmd: RigCommand) -> anyhow::Result<()> {
     match cmd {
         RigCommand::Build(a) => build(a),
+        RigCommand::FromLgi(a) => from_lgi(a),
     }
 }
 
@@ -272,6 +304,78 @@ fn build(args: BuildArgs) -> anyhow::Result<()> {
         "rig of {} blendshapes from {} examples written to {}",
         rig.names.len(),
         examples.len(),
+        manifest.display()
+    );
+    Ok(())
+}
+
+/// Parses `--combinations`.
+fn parse_combinations(spec: &str, template: &Dataset) -> anyhow::Result<Vec<Combination>> {
+    let n = template.shapes.len();
+    match spec.trim() {
+        "none" | "" => Ok(Vec::new()),
+        "all" => Ok((0..n)
+            .flat_map(|a| ((a + 1)..n).map(move |b| vec![(a, 1.0), (b, 1.0)]))
+            .collect()),
+        list => list
+            .split(',')
+            .map(|combo| {
+                combo
+                    .split('+')
+                    .map(|term| {
+                        let (name, w) = match term.split_once('*') {
+                            Some((name, w)) => (
+                                name.trim(),
+                                w.trim()
+                                    .parse::<f64>()
+                                    .with_context(|| format!("bad weight in {term:?}"))?,
+                            ),
+                            None => (term.trim(), 1.0),
+                        };
+                        let i = template
+                            .shape_index(name)
+                            .with_context(|| format!("the template has no shape {name:?}"))?;
+                        Ok((i, w))
+                    })
+                    .collect::<anyhow::Result<Combination>>()
+            })
+            .collect(),
+    }
+}
+
+fn from_lgi(args: FromLgiArgs) -> anyhow::Result<()> {
+    let template = DatasetArgs {
+        dataset: args.template.clone(),
+        no_cache: args.dataset.no_cache,
+        cache_dir: args.dataset.cache_dir.clone(),
+    }
+    .load()?;
+    let dataset = args.dataset.load()?;
+    let layout = match &args.layout {
+        Some(p) => MarkerLayout::read_csv(p).with_context(|| format!("reading {}", p.display()))?,
+        None => generate_layout(&dataset, &LayoutParams::default())
+            .context("generating a marker layout for the dataset")?,
+    };
+    let combinations = parse_combinations(&args.combinations, &template)?;
+    let total = (template.shapes.len() + combinations.len()) as u64;
+    let bar = indicatif::ProgressBar::new(total);
+    let rig = rig_from_lgi(
+        &template,
+        &dataset,
+        &layout,
+        &combinations,
+        &FromLgiParams::default(),
+        &|done, _| bar.set_position(done as u64),
+    )
+    .context("building the rig through LGI")?;
+    bar.finish_and_clear();
+    let manifest = write_dataset(&rig.dataset, &args.out)
+        .with_context(|| format!("writing the rig to {}", args.out.display()))?;
+    println!(
+        "rig of {} blendshapes and {} combinations from {} markers written to {}",
+        template.shapes.len(),
+        combinations.len(),
+        layout.len(),
         manifest.display()
     );
     Ok(())

@@ -210,6 +210,9 @@ pub struct IterationReport {
     pub fits: Vec<ExampleFit>,
     /// Wall time of the alternation (steps A and B and the report), seconds.
     pub seconds: f64,
+    /// Wall time of its parts, seconds: step A frames, step A vertex reconstruction,
+    /// step B weights.
+    pub step_seconds: [f64; 3],
 }
 
 /// The actor rig.
@@ -617,8 +620,11 @@ impl RigBuilder {
             let start = Instant::now();
             let (beta, gamma) = self.params.schedule(k);
             self.step_a(&alpha, &residual_frames, beta, &mut frames);
+            let t_frames = start.elapsed().as_secs_f64();
             displacements = self.reconstruct(&frames);
+            let t_reconstruct = start.elapsed().as_secs_f64();
             alpha = self.step_b(&displacements, &offsets, &prior, &alpha, gamma, exclusive);
+            let t_weights = start.elapsed().as_secs_f64();
             fits = self.fits(&displacements, &offsets, &alpha, &example_energy);
             on_iteration(&IterationReport {
                 iteration: k,
@@ -627,6 +633,11 @@ impl RigBuilder {
                 gamma,
                 fits: fits.clone(),
                 seconds: start.elapsed().as_secs_f64(),
+                step_seconds: [
+                    t_frames,
+                    t_reconstruct - t_frames,
+                    t_weights - t_reconstruct,
+                ],
             });
         }
         let inexpressible: Vec<usize> = fits

@@ -22,11 +22,13 @@
 //! and [`crate::lgi`].
 
 pub mod builder;
+pub mod from_lgi;
 pub mod register;
 
 pub use builder::{
     Example, ExampleFit, IterationReport, Rig, RigBuilder, RigParams, deformation_transfer,
 };
+pub use from_lgi::{Combination, FromLgiParams, LgiRig, combination_name, rig_from_lgi};
 pub use register::{Registration, RegistrationParams, register};
 
 use crate::dataset::DatasetError;
