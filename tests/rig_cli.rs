@@ -126,3 +126,65 @@ fn rig_build_writes_a_dataset_that_reproduces_the_examples() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("smileBig"), "{stderr}");
 }
+
+#[test]
+fn rig_from_lgi_writes_blendshapes_and_combinations() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("lgi-rig");
+    let out = helmcap(&[
+        "rig",
+        "from-lgi",
+        "--template",
+        "builtin:11",
+        "--dataset",
+        "builtin:12",
+        "--combinations",
+        "mouthSmile_L+mouthSmile_R,jawOpen*0.5+mouthFunnel",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rig = load_dataset(
+        &out_dir.join("manifest.toml"),
+        &LoadOptions {
+            no_cache: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let actor = Actor::new(&ActorParams::from_seed(12)).unwrap();
+    assert_eq!(rig.shapes.len(), actor.expression_names().len() + 2);
+    assert!(rig.shape_index("mouthSmile_L+mouthSmile_R").is_some());
+    assert!(rig.shape_index("jawOpen_w0.5+mouthFunnel").is_some());
+    // The smile blendshape lands near the actor's true smile (LGI from its own shapes).
+    let i = rig.shape_index("mouthSmile_L").unwrap();
+    let truth = &actor.to_dataset().shapes[i].positions;
+    let face = actor.face_vertex_count();
+    let rms = (rig.shapes[i].positions[..face]
+        .iter()
+        .zip(&truth[..face])
+        .map(|(a, b)| (a - b).norm_squared())
+        .sum::<f64>()
+        / face as f64)
+        .sqrt();
+    println!("from-lgi smile: {rms:.3} mm RMS from the truth");
+    assert!(rms < 0.5, "{rms}");
+    let bad = helmcap(&[
+        "rig",
+        "from-lgi",
+        "--template",
+        "builtin:11",
+        "--dataset",
+        "builtin:12",
+        "--combinations",
+        "nope+mouthFunnel",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("nope"));
+}

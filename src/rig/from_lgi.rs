@@ -56,7 +56,7 @@ pub type Combination = Vec<(usize, f64)>;
 #[derive(Debug, Clone)]
 pub struct LgiRig {
     /// The actor rig: the actor's neutral, one shape per template blendshape (same names),
-    /// then one per combination (named `a+b`, or `a*0.5+b` for partial weights).
+    /// then one per combination (named `a+b`, or `a_w0.5+b` for partial weights).
     pub dataset: Dataset,
     /// The template blendshapes transferred to the actor (deformation transfer), absolute
     /// positions, template order: the "template applied to the actor" the bundles came from.
@@ -84,7 +84,8 @@ impl LgiRig {
     }
 }
 
-/// Name of a combination: shape names joined by `+`, each with `*w` unless `w` is 1.
+/// Name of a combination: shape names joined by `+`, each with `_w<weight>` unless the weight is 1 (characters a
+/// dataset shape file name allows).
 pub fn combination_name(names: &[String], combo: &[(usize, f64)]) -> String {
     combo
         .iter()
@@ -93,7 +94,7 @@ pub fn combination_name(names: &[String], combo: &[(usize, f64)]) -> String {
             if (w - 1.0).abs() < 1e-12 {
                 n.to_string()
             } else {
-                format!("{n}*{w}")
+                format!("{n}_w{w}")
             }
         })
         .collect::<Vec<_>>()
