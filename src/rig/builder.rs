@@ -677,62 +677,71 @@ impl RigBuilder {
     ) {
         let n = self.names.len();
         let m = alpha.len();
-        let active: Vec<usize> = (0..n)
-            .filter(|&i| alpha.iter().any(|a| a[i] != 0.0))
+        // Per active blendshape, the examples using it: (j, α_ij), α_ij ≠ 0.
+        let active: Vec<(usize, Vec<(usize, f64)>)> = (0..n)
+            .filter_map(|i| {
+                let uses: Vec<(usize, f64)> = alpha
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, a)| a[i] != 0.0)
+                    .map(|(j, a)| (j, a[i]))
+                    .collect();
+                (!uses.is_empty()).then_some((i, uses))
+            })
             .collect();
-        frames.par_chunks_mut(n).enumerate().for_each(|(ti, out)| {
-            let p = &self.targets[ti * n..(ti + 1) * n];
-            let w = &self.reg_weights[ti * n..(ti + 1) * n];
-            let r = &residual_frames[ti * m..(ti + 1) * m];
-            out.copy_from_slice(p);
-            if active.is_empty() {
-                return;
-            }
-            // z_i = (Σ_j α_ij R_j)/d_i + P_i, S = I + Σ_i α_i α_iᵀ/d_i, y = Σ_i α_i z_iᵀ.
-            let mut s = DMatrix::<f64>::identity(m, m);
-            let mut y = DMatrix::<f64>::zeros(m, 6);
-            let mut z = Vec::with_capacity(active.len());
-            for &i in &active {
-                let d = beta * w[i];
-                let mut zi = p[i];
-                for (j, rj) in r.iter().enumerate() {
-                    let a = alpha[j][i];
-                    if a != 0.0 {
-                        zi += rj * (a / d);
-                    }
+        frames.par_chunks_mut(n).enumerate().for_each_init(
+            || {
+                (
+                    DMatrix::<f64>::zeros(m, m),
+                    DMatrix::<f64>::zeros(m, 6),
+                    Vec::with_capacity(active.len()),
+                )
+            },
+            |(s, y, z), (ti, out)| {
+                let p = &self.targets[ti * n..(ti + 1) * n];
+                let w = &self.reg_weights[ti * n..(ti + 1) * n];
+                let r = &residual_frames[ti * m..(ti + 1) * m];
+                out.copy_from_slice(p);
+                if active.is_empty() {
+                    return;
                 }
-                for j in 0..m {
-                    let aj = alpha[j][i];
-                    if aj == 0.0 {
-                        continue;
+                // z_i = (Σ_j α_ij R_j)/d_i + P_i, S = I + Σ_i α_i α_iᵀ/d_i, y = Σ_i α_i z_iᵀ,
+                // with d_i = β w_i; then X_i = z_i − (Σ_j α_ij U_j)/d_i for U = S⁻¹ y.
+                s.fill(0.0);
+                s.fill_diagonal(1.0);
+                y.fill(0.0);
+                z.clear();
+                for (i, uses) in &active {
+                    let inv_d = 1.0 / (beta * w[*i]);
+                    let mut zi = p[*i];
+                    for &(j, a) in uses {
+                        zi += r[j] * (a * inv_d);
                     }
-                    for l in 0..m {
-                        s[(j, l)] += aj * alpha[l][i] / d;
-                    }
-                    for c in 0..6 {
-                        y[(j, c)] += aj * zi[c];
-                    }
-                }
-                z.push(zi);
-            }
-            let Some(chol) = s.cholesky() else {
-                return;
-            };
-            let u = chol.solve(&y);
-            for (&i, zi) in active.iter().zip(&z) {
-                let d = beta * w[i];
-                let mut x = *zi;
-                for j in 0..m {
-                    let aj = alpha[j][i];
-                    if aj != 0.0 {
+                    for &(j, aj) in uses {
+                        for &(l, al) in uses {
+                            s[(j, l)] += aj * al * inv_d;
+                        }
                         for c in 0..6 {
-                            x[c] -= aj * u[(j, c)] / d;
+                            y[(j, c)] += aj * zi[c];
                         }
                     }
+                    z.push((zi, inv_d));
                 }
-                out[i] = x;
-            }
-        });
+                let Some(chol) = s.clone().cholesky() else {
+                    return;
+                };
+                let u = chol.solve(y);
+                for ((i, uses), (zi, inv_d)) in active.iter().zip(z.iter()) {
+                    let mut x = *zi;
+                    for &(j, aj) in uses {
+                        for c in 0..6 {
+                            x[c] -= aj * u[(j, c)] * inv_d;
+                        }
+                    }
+                    out[*i] = x;
+                }
+            },
+        );
     }
 
     /// Reconstructs every blendshape's displacement from its frames (triangle-major).
