@@ -15,6 +15,8 @@
 //! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 //! - [`align`]: rigid alignment (Horn's method).
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
+//! - [`rig`]: actor-specific blendshape rigs (Li et al. 2010), scan registration, rigs
+//!   from LGI.
 
 pub mod align;
 pub mod atomic_file;
@@ -26,6 +28,7 @@ pub mod dataset;
 pub mod enhance;
 pub mod lgi;
 pub mod mesh;
+pub mod rig;
 pub mod solve;
 pub mod stereo;
 pub mod synth;

@@ -23,6 +23,20 @@ pub enum BenchCommand {
     /// Accuracy and speed of the solve methods on held-out performances (ICT-FaceKit
     /// variants and the built-in actor): prints the Markdown table of the README.
     Solve(SolveBenchArgs),
+    /// Time example-based rigging (Li et al. 2010): setup, and each alternation of steps A
+    /// and B (median over the alternations).
+    Rig {
+        /// Template dataset manifest, or `builtin[:SEED]`.
+        #[arg(long, short = 'd', default_value = "configs/datasets/ict-facekit.toml")]
+        dataset: String,
+        /// Number of synthetic example poses (each 3 random blendshapes at random weights,
+        /// on a smoothly warped copy of the template neutral).
+        #[arg(long, default_value_t = 14)]
+        examples: usize,
+        /// Number of timed alternations.
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+    },
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -66,6 +80,11 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         }
         BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
         BenchCommand::Solve(a) => solve_bench(a)?,
+        BenchCommand::Rig {
+            dataset,
+            examples,
+            runs,
+        } => bench_rig(&dataset, examples, runs)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {
@@ -189,4 +208,130 @@ fn tempfile_dir() -> anyhow::Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     Ok(dir)
+}
+
+/// `helmcap bench rig`.
+fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
+    use helmcap::rig::{Example, RigBuilder, RigParams};
+    let template = super::DatasetArgs {
+        dataset: dataset.to_string(),
+        no_cache: false,
+        cache_dir: None,
+    }
+    .load()?;
+    let n = template.shapes.len();
+    let a0 = &template.neutral.positions;
+    // The "actor": the template neutral under a smooth non-rigid warp (a few mm).
+    let neutral: Vec<nalgebra::Point3<f64>> = a0
+        .iter()
+        .map(|p| {
+            nalgebra::Point3::new(
+                p.x * 1.03 + 0.5 * (p.y * 0.05).sin(),
+                p.y * 0.98 + 0.5 * (p.z * 0.04).cos(),
+                p.z * 1.01 + 0.5 * (p.x * 0.06).sin(),
+            )
+        })
+        .collect();
+    let mut seed = 17u64;
+    let mut next = || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let examples: Vec<Example> = (0..count)
+        .map(|j| {
+            let mut w = vec![0.0; n];
+            for _ in 0..3 {
+                let i = ((next() * n as f64) as usize).min(n - 1);
+                w[i] = 0.4 + 0.6 * next();
+            }
+            let mut positions = neutral.clone();
+            for (i, &wi) in w.iter().enumerate() {
+                if wi > 0.0 {
+                    for ((p, s), a) in positions
+                        .iter_mut()
+                        .zip(&template.shapes[i].positions)
+                        .zip(a0)
+                    {
+                        *p += (s - a) * wi;
+                    }
+                }
+            }
+            let initial_weights = w.iter().map(|&x| if x > 0.0 { 0.7 } else { 0.0 }).collect();
+            Example {
+                name: format!("example{j}"),
+                positions,
+                initial_weights,
+            }
+        })
+        .collect();
+    let params = RigParams {
+        alternations: runs.max(1),
+        ..RigParams::default()
+    };
+    let t = Instant::now();
+    let builder = RigBuilder::new(&template, &neutral, &params)?;
+    let setup = t.elapsed().as_secs_f64();
+    let mut times = Vec::new();
+    let mut parts = Vec::new();
+    let mut cpu = Vec::new();
+    let mut cpu_before = process_cpu_seconds();
+    let rig = builder.build(&examples, &[], &mut |r| {
+        times.push(r.seconds);
+        parts.push(r.step_seconds);
+        let now = process_cpu_seconds();
+        if let (Some(a), Some(b)) = (cpu_before, now) {
+            cpu.push(b - a);
+        }
+        cpu_before = now;
+    })?;
+    times.sort_by(f64::total_cmp);
+    cpu.sort_by(f64::total_cmp);
+    let median_part = |k: usize| {
+        let mut v: Vec<f64> = parts.iter().map(|p| p[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let worst = rig.fits.iter().map(|f| f.vertex_rms_mm).fold(0.0, f64::max);
+    println!(
+        "rig: {} vertices, {} triangles, {n} blendshapes, {count} examples",
+        template.vertex_count(),
+        template.neutral.triangles.len()
+    );
+    println!("  setup (frames, targets, {n} factorizations) {setup:8.2} s");
+    println!(
+        "  per alternation, median of {}            {:8.2} s",
+        times.len(),
+        times[times.len() / 2]
+    );
+    println!(
+        "    step A frames {:.2} s, reconstruction {:.2} s, step B weights {:.2} s",
+        median_part(0),
+        median_part(1),
+        median_part(2)
+    );
+    if !cpu.is_empty() {
+        println!(
+            "  CPU time per alternation, median           {:8.2} s (all threads)",
+            cpu[cpu.len() / 2]
+        );
+    }
+    println!(
+        "  worst example fit after {} alternations   {worst:8.3} mm RMS",
+        times.len()
+    );
+    Ok(())
+}
+
+/// CPU time (user + system, all threads) of this process so far, from /proc/self/stat
+/// (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
+fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start after the last ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
 }

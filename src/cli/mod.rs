@@ -7,7 +7,9 @@ mod dataset;
 mod demo;
 mod enhance;
 mod markers;
+mod register;
 mod retime;
+mod rig;
 mod solve;
 mod synth;
 
@@ -47,6 +49,11 @@ enum Command {
     /// Release-mode benchmarks (median of several runs).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Bring a scan of any topology into a template's topology (non-rigid ICP).
+    Register(register::RegisterArgs),
+    /// Actor-specific blendshape rigs (example-based rigging, rigs from LGI).
+    #[command(subcommand)]
+    Rig(rig::RigCommand),
     /// Render a synthetic helmet recording with ground truth, or calibration target images.
     Synth(synth::SynthArgs),
     /// Stereo calibration from image pairs of a target -> calibration YAML.
@@ -82,6 +89,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Rig(c) => rig::run(c),
+        Command::Register(a) => register::run(a),
     }
 }
 

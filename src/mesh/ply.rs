@@ -102,6 +102,284 @@ fn write_body<W: Write>(w: &mut W, mesh: &Mesh, positions: &[Point3<f64>]) -> io
     Ok(())
 }
 
+/// Scalar types of PLY properties.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum PlyScalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl PlyScalar {
+    fn parse(s: &str) -> Option<Self> {
+        Some(match s {
+            "char" | "int8" => Self::I8,
+            "uchar" | "uint8" => Self::U8,
+            "short" | "int16" => Self::I16,
+            "ushort" | "uint16" => Self::U16,
+            "int" | "int32" => Self::I32,
+            "uint" | "uint32" => Self::U32,
+            "float" | "float32" => Self::F32,
+            "double" | "float64" => Self::F64,
+            _ => return None,
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
+    /// Decodes one value from exactly `self.size()` bytes.
+    fn decode(self, b: &[u8], little: bool) -> f64 {
+        macro_rules! num {
+            ($t:ty, $n:expr) => {{
+                let mut a = [0u8; $n];
+                a.copy_from_slice(&b[..$n]);
+                (if little {
+                    <$t>::from_le_bytes(a)
+                } else {
+                    <$t>::from_be_bytes(a)
+                }) as f64
+            }};
+        }
+        match self {
+            Self::I8 => num!(i8, 1),
+            Self::U8 => num!(u8, 1),
+            Self::I16 => num!(i16, 2),
+            Self::U16 => num!(u16, 2),
+            Self::I32 => num!(i32, 4),
+            Self::U32 => num!(u32, 4),
+            Self::F32 => num!(f32, 4),
+            Self::F64 => num!(f64, 8),
+        }
+    }
+}
+
+/// One property of a PLY element: a scalar, or a list (count type, item type).
+#[derive(Debug, Clone)]
+struct PlyProperty {
+    name: String,
+    scalar: PlyScalar,
+    list_count: Option<PlyScalar>,
+}
+
+#[derive(Debug, Clone)]
+struct PlyElement {
+    name: String,
+    count: usize,
+    properties: Vec<PlyProperty>,
+}
+
+/// Reads a PLY mesh (ASCII, binary little- or big-endian): the `vertex` element's `x y z`
+/// (any scalar type) and the `face` element's `vertex_indices` (or `vertex_index`) lists;
+/// other properties and elements are skipped. Scans from most scanners and tools load.
+/// Units are the file's (PLY declares none).
+///
+/// # Errors
+/// [`MeshError::Io`] when the file cannot be read, [`MeshError::Parse`] (line 0 for the
+/// binary body) for a malformed header or body, [`MeshError::Empty`] without vertices or
+/// faces, [`MeshError::Invalid`] for a bad index.
+pub fn read_ply(path: &Path) -> Result<Mesh, MeshError> {
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    read_ply_bytes(&bytes, &name)
+}
+
+/// [`read_ply`] on the bytes of a file; `name` is used in errors.
+///
+/// # Errors
+/// As [`read_ply`].
+pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
+    let parse = |line: usize, message: String| MeshError::Parse {
+        path: name.to_string(),
+        line,
+        message,
+    };
+    let end = b"end_header";
+    let header_end = bytes
+        .windows(end.len())
+        .position(|w| w == end)
+        .ok_or_else(|| parse(1, "no end_header".into()))?;
+    let mut body = header_end + end.len();
+    while body < bytes.len() && bytes[body] != b'\n' {
+        body += 1;
+    }
+    body += 1;
+    let header = std::str::from_utf8(&bytes[..header_end])
+        .map_err(|_| parse(1, "header is not text".into()))?;
+    let mut lines = header.lines().enumerate();
+    if lines.next().map(|(_, l)| l.trim()) != Some("ply") {
+        return Err(parse(1, "not a PLY file (first line is not `ply`)".into()));
+    }
+    let mut format = None;
+    let mut elements: Vec<PlyElement> = Vec::new();
+    for (i, line) in lines {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["format", f, _] => format = Some(f.to_string()),
+            ["element", n, c] => elements.push(PlyElement {
+                name: n.to_string(),
+                count: c
+                    .parse()
+                    .map_err(|_| parse(i + 1, format!("bad element count {c:?}")))?,
+                properties: Vec::new(),
+            }),
+            ["property", "list", c, t, n] => {
+                let e = elements
+                    .last_mut()
+                    .ok_or_else(|| parse(i + 1, "property before any element".into()))?;
+                e.properties.push(PlyProperty {
+                    name: n.to_string(),
+                    scalar: PlyScalar::parse(t)
+                        .ok_or_else(|| parse(i + 1, format!("unknown type {t:?}")))?,
+                    list_count: Some(
+                        PlyScalar::parse(c)
+                            .ok_or_else(|| parse(i + 1, format!("unknown type {c:?}")))?,
+                    ),
+                });
+            }
+            ["property", t, n] => {
+                let e = elements
+                    .last_mut()
+                    .ok_or_else(|| parse(i + 1, "property before any element".into()))?;
+                e.properties.push(PlyProperty {
+                    name: n.to_string(),
+                    scalar: PlyScalar::parse(t)
+                        .ok_or_else(|| parse(i + 1, format!("unknown type {t:?}")))?,
+                    list_count: None,
+                });
+            }
+            [] | ["comment", ..] | ["obj_info", ..] => {}
+            _ => return Err(parse(i + 1, format!("unexpected header line {line:?}"))),
+        }
+    }
+    let little = match format.as_deref() {
+        Some("ascii") => None,
+        Some("binary_little_endian") => Some(true),
+        Some("binary_big_endian") => Some(false),
+        other => return Err(parse(2, format!("unsupported format {other:?}"))),
+    };
+    // Reads the values of one element row: scalars as one-element lists.
+    let mut positions = Vec::new();
+    let mut polygons: Vec<Vec<u32>> = Vec::new();
+    let text_body = if little.is_none() {
+        Some(
+            std::str::from_utf8(&bytes[body.min(bytes.len())..])
+                .map_err(|_| parse(0, "ASCII body is not text".into()))?,
+        )
+    } else {
+        None
+    };
+    let mut tokens = text_body.map(|t| t.split_whitespace());
+    let mut offset = body;
+    let mut next_value = |scalar: PlyScalar| -> Result<f64, MeshError> {
+        match (&mut tokens, little) {
+            (Some(t), _) => {
+                let tok = t
+                    .next()
+                    .ok_or_else(|| parse(0, "the body ends early".into()))?;
+                tok.parse::<f64>()
+                    .map_err(|_| parse(0, format!("bad number {tok:?}")))
+            }
+            (None, Some(le)) => {
+                let size = scalar.size();
+                let b = bytes
+                    .get(offset..offset + size)
+                    .ok_or_else(|| parse(0, "the binary body ends early".into()))?;
+                offset += size;
+                Ok(scalar.decode(b, le))
+            }
+            (None, None) => Err(parse(0, "no body".into())),
+        }
+    };
+    for e in &elements {
+        let xyz: Vec<Option<usize>> = ["x", "y", "z"]
+            .iter()
+            .map(|c| e.properties.iter().position(|p| p.name == *c))
+            .collect();
+        for _ in 0..e.count {
+            let mut row: Vec<Vec<f64>> = Vec::with_capacity(e.properties.len());
+            for p in &e.properties {
+                match p.list_count {
+                    None => row.push(vec![next_value(p.scalar)?]),
+                    Some(c) => {
+                        let k = next_value(c)?;
+                        if !(0.0..=1.0e6).contains(&k) {
+                            return Err(parse(0, format!("bad list length {k}")));
+                        }
+                        let mut items = Vec::with_capacity(k as usize);
+                        for _ in 0..k as usize {
+                            items.push(next_value(p.scalar)?);
+                        }
+                        row.push(items);
+                    }
+                }
+            }
+            if e.name == "vertex" {
+                let mut c = [0.0; 3];
+                for (k, idx) in xyz.iter().enumerate() {
+                    let idx =
+                        idx.ok_or_else(|| parse(0, "vertex element without x, y, z".into()))?;
+                    c[k] = row[idx][0];
+                }
+                positions.push(Point3::new(c[0], c[1], c[2]));
+            } else if e.name == "face" {
+                let idx = e
+                    .properties
+                    .iter()
+                    .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
+                    .ok_or_else(|| parse(0, "face element without vertex_indices".into()))?;
+                let poly = row[idx]
+                    .iter()
+                    .map(|&v| {
+                        if v >= 0.0 && v <= u32::MAX as f64 && v.fract() == 0.0 {
+                            Ok(v as u32)
+                        } else {
+                            Err(MeshError::Invalid(format!("{name}: bad vertex index {v}")))
+                        }
+                    })
+                    .collect::<Result<Vec<u32>, _>>()?;
+                polygons.push(poly);
+            }
+        }
+    }
+    if positions.is_empty() || polygons.is_empty() {
+        return Err(MeshError::Empty {
+            path: name.to_string(),
+            message: "no vertices or no faces".into(),
+        });
+    }
+    Mesh::new(positions, &polygons, Vec::new(), None)
+}
+
+/// Reads a mesh by its extension: `.ply` with [`read_ply`], anything else as OBJ.
+///
+/// # Errors
+/// As the reader used.
+pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
+    let is_ply = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"));
+    if is_ply {
+        read_ply(path)
+    } else {
+        super::read_obj(path)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,5 +527,29 @@ mod tests {
         assert!(!path.exists());
         let err = write_ply(&dir.path().join("missing/bad.ply"), &mesh, None).unwrap_err();
         assert!(matches!(err, MeshError::Io { .. }), "{err}");
+    }
+
+    #[test]
+    fn read_ply_round_trips_binary_and_reads_ascii() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("g.ply");
+        let m = grid(4, 1.5);
+        write_ply(&path, &m, None).unwrap();
+        let back = read_ply(&path).unwrap();
+        assert_eq!(back.face_vertices, m.face_vertices);
+        for (a, b) in back.positions.iter().zip(&m.positions) {
+            assert!((a - b).norm() < 1e-5);
+        }
+        let ascii = "ply\nformat ascii 1.0\ncomment x\nelement vertex 3\nproperty double x\n\
+                     property double y\nproperty double z\nproperty uchar red\n\
+                     element face 1\nproperty list uchar int vertex_index\nend_header\n\
+                     0 0 0 255\n1 0 0 0\n0 1 0.5 9\n3 0 1 2\n";
+        let t = read_ply_bytes(ascii.as_bytes(), "t.ply").unwrap();
+        assert_eq!(t.positions[2], Point3::new(0.0, 1.0, 0.5));
+        assert_eq!(t.triangles, vec![[0, 1, 2]]);
+        let bad = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                   property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                   end_header\n0 0 0\n1 0 0\n";
+        assert!(read_ply_bytes(bad.as_bytes(), "bad.ply").is_err());
     }
 }
