@@ -66,10 +66,10 @@ impl StabilizeParams {
         if self.min_markers < 3 {
             return Err("min_markers must be at least 3".into());
         }
-        if !(self.max_inlier_rms_mm > 0.0) {
+        if self.max_inlier_rms_mm.is_nan() || self.max_inlier_rms_mm <= 0.0 {
             return Err("max_inlier_rms_mm must be positive".into());
         }
-        if !(self.max_displacement_mm > 0.0) {
+        if self.max_displacement_mm.is_nan() || self.max_displacement_mm <= 0.0 {
             return Err("max_displacement_mm must be positive".into());
         }
         Ok(())

@@ -2,10 +2,12 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
+mod bench_pipeline;
 mod dataset;
 mod demo;
 mod enhance;
 mod markers;
+mod replay;
 mod retime;
 mod solve;
 mod synth;
@@ -29,7 +31,7 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Synthetic session of the built-in actor through everything that exists so far.
+    /// A synthetic session of the built-in actor through the whole pipeline.
     Demo(demo::DemoArgs),
     /// Inspect, cache or synthesize datasets of face shapes.
     #[command(subcommand)]
@@ -41,6 +43,8 @@ enum Command {
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Run the pipeline on a recorded session: bundles, head pose, meshes, exports.
+    Replay(replay::ReplayArgs),
     /// Reconstruct the dense face of every frame of a bundles CSV.
     Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
@@ -74,6 +78,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
+        Command::Replay(a) => replay::run(a),
         Command::Retime(a) => retime::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),

@@ -32,6 +32,7 @@
 
 pub mod frame;
 pub mod metrics;
+mod run;
 pub mod sink;
 pub mod sources;
 pub mod truth;
@@ -41,6 +42,7 @@ pub use metrics::{
     AccuracyMetrics, GapMetrics, LabelingMetrics, LatencyHistogram, LatencyStats, Metrics,
     MetricsCollector, TimecodeRange,
 };
+pub use run::{PipelineConfig, run};
 pub use sink::{SessionMeta, Sink, SinkError};
 pub use truth::GroundTruth;
 

@@ -8,11 +8,11 @@ use std::time::Instant;
 use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
 use nalgebra::Point3;
 
+use super::PipelineError;
 use super::frame::{BundleStatus, FrameResult, LabelCounts, MarkerResult, Stage};
 use super::metrics::{Metrics, MetricsCollector};
 use super::sink::{SessionMeta, Sink};
 use super::truth::GroundTruth;
-use super::PipelineError;
 use crate::align::{PoseSource, StabilizeParams, Stabilizer};
 use crate::bundles::FrameBundles;
 use crate::camera::StereoRig;
@@ -128,7 +128,9 @@ fn spawn<T: Send + 'static>(
     std::thread::Builder::new()
         .name(format!("helmcap:{}", stage.name()))
         .spawn(f)
-        .map_err(|e| PipelineError::Thread(format!("helmcap:{} could not start: {e}", stage.name())))
+        .map_err(|e| {
+            PipelineError::Thread(format!("helmcap:{} could not start: {e}", stage.name()))
+        })
 }
 
 fn ms_since(t: Instant) -> f64 {
@@ -180,7 +182,9 @@ pub fn run(
         frame_count,
     } = config;
     let config_err = PipelineError::Config;
-    detect.validate().map_err(|e| config_err(format!("detection: {e}")))?;
+    detect
+        .validate()
+        .map_err(|e| config_err(format!("detection: {e}")))?;
     if neutral_markers_head.len() != layout.len() {
         return Err(config_err(format!(
             "{} neutral marker positions for {} layout markers",
@@ -188,27 +192,21 @@ pub fn run(
             layout.len()
         )));
     }
-    if let (Some(mesh), Some(_)) = (&neutral, &solver) {
-        if let Some(m) = layout
+    if let (Some(mesh), Some(_)) = (&neutral, &solver)
+        && let Some(m) = layout
             .markers
             .iter()
             .find(|m| m.vertex as usize >= mesh.vertex_count())
-        {
-            return Err(config_err(format!(
-                "marker {} is on vertex {}, the neutral mesh has {}",
-                m.name,
-                m.vertex,
-                mesh.vertex_count()
-            )));
-        }
+    {
+        return Err(config_err(format!(
+            "marker {} is on vertex {}, the neutral mesh has {}",
+            m.name,
+            m.vertex,
+            mesh.vertex_count()
+        )));
     }
-    let labeler = Labeler::new(
-        rig.clone(),
-        &layout,
-        neutral_markers_head.to_vec(),
-        label,
-    )
-    .map_err(|e| config_err(e.to_string()))?;
+    let labeler = Labeler::new(rig.clone(), &layout, neutral_markers_head.to_vec(), label)
+        .map_err(|e| config_err(e.to_string()))?;
     let stabilizer = Stabilizer::new(&layout, neutral_markers_head.to_vec(), stabilize)
         .map_err(|e| config_err(e.to_string()))?;
     let capacity = channel_capacity.max(1);
@@ -222,7 +220,11 @@ pub fn run(
         frame_count,
         layout: layout.clone(),
         neutral_markers_head: neutral_markers_head.clone(),
-        neutral: if solver.is_some() { neutral.clone() } else { None },
+        neutral: if solver.is_some() {
+            neutral.clone()
+        } else {
+            None
+        },
         face_vertices: face_vertices.clone(),
         rig: Some(rig.clone()),
         image_size: Some((rig.cam0.width_px, rig.cam0.height_px)),
@@ -363,7 +365,10 @@ pub fn run(
                         let t = Instant::now();
                         if let Some(mesh) = &f.mesh {
                             let detailed = enhancer.enhance(mesh).map_err(|e| {
-                                record(&errors, stage_err(Stage::Enhance, Some(f.index), e.to_string()))
+                                record(
+                                    &errors,
+                                    stage_err(Stage::Enhance, Some(f.index), e.to_string()),
+                                )
                             })?;
                             if let Some(truth) = &truth {
                                 f.mesh_error_mm =
@@ -412,9 +417,9 @@ pub fn run(
                 r
             });
             match handle {
-                Ok(h) => h
-                    .join()
-                    .unwrap_or_else(|_| Err(PipelineError::Thread("helmcap:sinks panicked".into()))),
+                Ok(h) => h.join().unwrap_or_else(|_| {
+                    Err(PipelineError::Thread("helmcap:sinks panicked".into()))
+                }),
                 Err(e) => Err(e),
             }
         }
@@ -597,7 +602,12 @@ fn solve_frame(
     let mesh = solver
         .solve(&bundles)
         .map_err(|e| stage_err(Stage::Solve, Some(f.index), e.to_string()))?;
-    for ((m, marker), seen) in f.markers.iter_mut().zip(&layout.markers).zip(last_seen.iter()) {
+    for ((m, marker), seen) in f
+        .markers
+        .iter_mut()
+        .zip(&layout.markers)
+        .zip(last_seen.iter())
+    {
         if m.status == BundleStatus::Missing
             && let Some(p) = mesh.get(marker.vertex as usize)
         {
