@@ -241,6 +241,7 @@ fn check_c3d(out: &Path, first_frame: usize, frames: usize, fps: f32, timecode: 
         }
     }
     assert!(compared > 0);
+    check_with_python_c3d(&out.join("bundles.c3d"), labels.len(), first_frame, frames);
     if let Some(tc) = timecode {
         let start = c3d
             .parameters
@@ -252,6 +253,40 @@ fn check_c3d(out: &Path, first_frame: usize, frames: usize, fps: f32, timecode: 
         };
         assert_eq!(text.trim(), tc);
     }
+}
+
+/// Reads the C3D file with the independent Python `c3d` package when it is installed;
+/// prints why not otherwise.
+fn check_with_python_c3d(path: &Path, points: usize, first_frame: usize, frames: usize) {
+    let probe = Command::new("python3").args(["-c", "import c3d"]).output();
+    if !probe.map(|o| o.status.success()).unwrap_or(false) {
+        println!("skipping the python c3d check: python3 cannot import c3d (pip install c3d)");
+        return;
+    }
+    let script = format!(
+        r#"
+import c3d, warnings
+warnings.simplefilter("ignore")
+with open({path:?}, "rb") as h:
+    r = c3d.Reader(h)
+    assert r.point_used == {points}, r.point_used
+    assert r.first_frame == {first}, r.first_frame
+    n = sum(1 for _ in r.read_frames())
+    assert n == {frames}, n
+"#,
+        path = path.to_str().unwrap(),
+        first = first_frame + 1,
+    );
+    let out = Command::new("python3")
+        .args(["-c", &script])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "python c3d could not read {}: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]

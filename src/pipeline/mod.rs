@@ -14,9 +14,9 @@
 //!
 //! # Ordering and backpressure
 //! Frames stay in source order (every stage is one thread, every channel FIFO). A replay
-//! ([`FrameSource::is_live`] false) blocks on a full channel and never drops a frame. A
-//! live source must not be blocked: when the first channel is full the frame is dropped
-//! at the source and counted ([`Metrics::frames_dropped`]).
+//! ([`crate::capture::FrameSource::is_live`] false) blocks on a full channel and never
+//! drops a frame. A live source must not be blocked: when the first channel is full the
+//! frame is dropped at the source and counted ([`Metrics::frames_dropped`]).
 //!
 //! # Shutdown
 //! At the end of input the source thread returns, its channel disconnects, and each stage

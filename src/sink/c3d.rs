@@ -370,7 +370,12 @@ impl C3dSink {
             }
             let analog = p.group("ANALOG", "analog data");
             p.param(analog, "USED", "analog channels", Value::Int(vec![0]));
-            p.param(analog, "RATE", "analog rate", Value::Float(vec![rate]));
+            p.param(
+                analog,
+                "RATE",
+                "analog samples per second (none)",
+                Value::Float(vec![0.0]),
+            );
             let trial = p.group("TRIAL", "trial");
             let split = |n: usize| vec![(n & 0xFFFF) as u16 as i16, (n >> 16) as u16 as i16];
             p.param(

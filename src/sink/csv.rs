@@ -92,7 +92,10 @@ impl Sink for CsvSink {
             Ok(())
         })?;
         if let Some(p) = &f.cam0_from_head {
-            let q = p.rotation;
+            // q and −q are the same rotation: keep qw ≥ 0 so the columns do not flip sign
+            // from frame to frame.
+            let q = p.rotation.into_inner();
+            let q = if q.w < 0.0 { -q } else { q };
             let t = p.translation.vector;
             let source = match f.pose_source {
                 PoseSource::Held => "held",
