@@ -2,6 +2,7 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
+mod bench_capture;
 mod dataset;
 mod demo;
 mod enhance;
