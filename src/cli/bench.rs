@@ -28,6 +28,9 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         runs: usize,
     },
+    /// Time detection + tracking + triangulation on a synthetic session, and measure
+    /// labeling accuracy and bundle error at centroid noise levels.
+    Capture(super::bench_capture::CaptureBenchArgs),
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
@@ -64,6 +67,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             println!("  from cache        {:8.1} ms", cached * 1e3);
         }
         BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
+        BenchCommand::Capture(a) => super::bench_capture::run(a)?,
         BenchCommand::Pipeline(a) => super::bench_pipeline::run(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
@@ -97,7 +101,7 @@ fn time_runs<E: Into<anyhow::Error>>(
     Ok(times[times.len() / 2])
 }
 
-fn tempfile_dir() -> anyhow::Result<PathBuf> {
+pub(super) fn tempfile_dir() -> anyhow::Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     Ok(dir)

@@ -2,6 +2,7 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
+mod bench_capture;
 mod bench_pipeline;
 mod dataset;
 mod demo;

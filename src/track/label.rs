@@ -97,7 +97,7 @@ pub struct LabelParams {
     /// See [`LabelParams::ambiguity_ratio`], pixels. Default 2.
     pub ambiguity_margin_px: f64,
     /// Largest RMS reprojection error of a labeled marker's two detections (the epipolar
-    /// gate), pixels. Default 1.
+    /// gate), pixels. Default 0.6.
     pub max_reprojection_px: f64,
     /// The 3D gate around the prediction, as a multiple of the pixel gate's size at the
     /// marker's depth. Default 1.5.
@@ -139,7 +139,7 @@ impl Default for LabelParams {
             pose_pass_extra_gate_px: 10.0,
             ambiguity_ratio: 2.0,
             ambiguity_margin_px: 2.0,
-            max_reprojection_px: 1.0,
+            max_reprojection_px: 0.6,
             gate_3d_factor: 1.5,
             velocity_damping: 0.8,
             lost_min_markers: 6,
