@@ -174,16 +174,18 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
          stereo: {pairs} pairs, {wrong_pairs} wrong, {spurious_pairs} with a spurious blob, bundle RMS {rms_mm:.3} mm",
         100.0 * recall
     );
-    // Measured on this session: recall 88.5 %, 27 spurious blobs over 8 images, centre RMS
-    // 0.22 px, 204 pairs of which 4 wrong (one marker pair on a shared epipolar line whose
-    // true partners were both missed), bundle RMS 0.18 mm. Pairing by the epipolar
-    // constraint alone cannot reject such pairs: labeling against the layout must.
-    // About half the markers seen in both images pair unambiguously.
-    assert!(recall > 0.85, "recall {recall}");
+    // Measured on this session: recall 97.2 % (88.5 % before dots touching a crease or
+    // the shading at the face's edge were split out of their component), 92 spurious blobs
+    // over 8 images (irises, nostrils, the mouth line: round dark blobs that are no marker;
+    // labeling rejects them, tests/labeling.rs asserts zero wrong labels), centre RMS
+    // 0.24 px, 224 pairs of which none wrong, bundle RMS 0.20 mm. Pairing by the epipolar
+    // constraint alone cannot reject a pair of two markers on a shared epipolar line whose
+    // true partners were both missed: labeling against the layout must.
+    assert!(recall > 0.95, "recall {recall}");
     assert!(rms_px < 0.3, "centre RMS {rms_px} px");
-    assert!(spurious <= 40, "{spurious} spurious blobs");
+    assert!(spurious <= 120, "{spurious} spurious blobs");
     assert!(
-        wrong_pairs * 20 <= pairs,
+        wrong_pairs * 50 <= pairs,
         "{wrong_pairs} wrong of {pairs} pairs"
     );
     assert!(pairs as f64 > 0.4 * found as f64 / 2.0, "{pairs} pairs");

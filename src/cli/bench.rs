@@ -37,12 +37,17 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 5)]
         runs: usize,
     },
+    /// Replay throughput, live-paced latency and a memory soak of the pipeline.
+    Pipeline(super::bench_pipeline::PipelineBenchArgs),
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
         #[arg(long, default_value_t = 5)]
         runs: usize,
     },
+    /// Time detection + tracking + triangulation on a synthetic session, and measure
+    /// labeling accuracy and bundle error at centroid noise levels.
+    Capture(super::bench_capture::CaptureBenchArgs),
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
@@ -85,6 +90,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             examples,
             runs,
         } => bench_rig(&dataset, examples, runs)?,
+        BenchCommand::Capture(a) => super::bench_capture::run(a)?,
+        BenchCommand::Pipeline(a) => super::bench_pipeline::run(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {
@@ -204,7 +211,7 @@ fn time_runs<E: Into<anyhow::Error>>(
     Ok(times[times.len() / 2])
 }
 
-fn tempfile_dir() -> anyhow::Result<PathBuf> {
+pub(super) fn tempfile_dir() -> anyhow::Result<PathBuf> {
     let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     Ok(dir)

@@ -3,11 +3,14 @@
 
 mod bench;
 mod calibrate;
+mod bench_capture;
+mod bench_pipeline;
 mod dataset;
 mod demo;
 mod enhance;
 mod markers;
 mod register;
+mod replay;
 mod retime;
 mod rig;
 mod solve;
@@ -32,7 +35,7 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Synthetic session of the built-in actor through everything that exists so far.
+    /// A synthetic session of the built-in actor through the whole pipeline.
     Demo(demo::DemoArgs),
     /// Inspect, cache or synthesize datasets of face shapes.
     #[command(subcommand)]
@@ -44,6 +47,8 @@ enum Command {
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Run the pipeline on a recorded session: bundles, head pose, meshes, exports.
+    Replay(replay::ReplayArgs),
     /// Reconstruct the dense face of every frame of a bundles CSV.
     Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
@@ -84,6 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
+        Command::Replay(a) => replay::run(a),
         Command::Retime(a) => retime::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),

@@ -50,6 +50,9 @@ pub struct SynthArgs {
     /// Motion blur: sub-frame samples averaged over the shutter (1: none).
     #[arg(long, default_value_t = SynthParams::default().motion_blur_samples)]
     motion_blur: usize,
+    /// Mean time between lip presses (lips squeezed together), seconds (0: none).
+    #[arg(long, default_value_t = AnimationParams::default().lip_press_interval_secs)]
+    lip_press_interval: f64,
     /// Helmet slip translation amplitude, mm (0: none).
     #[arg(long, default_value_t = 0.0)]
     slip_mm: f64,
@@ -136,8 +139,10 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
             }
             let a = AnimationParams {
                 seed: args.seed,
+                lip_press_interval_secs: args.lip_press_interval,
                 ..AnimationParams::default()
             };
+            a.validate()?;
             animation::random_curves(&names, args.frames, args.fps, &a)
         }
     };

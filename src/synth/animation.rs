@@ -28,6 +28,12 @@ pub struct AnimationParams {
     pub blink_interval_secs: f64,
     /// Duration of one blink (close and open), seconds. Default 0.25.
     pub blink_duration_secs: f64,
+    /// Mean time between lip presses (`mouthPress_L`/`_R` with `mouthRollLower`, the
+    /// lips squeezed together: lip contact), seconds (0: none beyond the random keys).
+    /// Default 0.
+    pub lip_press_interval_secs: f64,
+    /// Duration of one lip press (in and out), seconds. Default 0.6.
+    pub lip_press_duration_secs: f64,
 }
 
 impl Default for AnimationParams {
@@ -41,6 +47,8 @@ impl Default for AnimationParams {
             neutral_lead_secs: 0.5,
             blink_interval_secs: 2.5,
             blink_duration_secs: 0.25,
+            lip_press_interval_secs: 0.0,
+            lip_press_duration_secs: 0.6,
         }
     }
 }
@@ -76,6 +84,12 @@ impl AnimationParams {
         }
         if not_positive(self.blink_duration_secs) {
             return bad("blink_duration_secs");
+        }
+        if not_non_negative(self.lip_press_interval_secs) {
+            return bad("lip_press_interval_secs");
+        }
+        if not_positive(self.lip_press_duration_secs) {
+            return bad("lip_press_duration_secs");
         }
         Ok(())
     }
@@ -144,6 +158,25 @@ pub fn random_curves(
             tb += params.blink_interval_secs * rng.random_range(0.5..1.5);
         }
     }
+    // Lip presses are drawn after the blinks so that sessions without them keep their
+    // exact curves.
+    let press: Vec<(usize, f64)> = names
+        .iter()
+        .enumerate()
+        .filter_map(|(i, n)| match *n {
+            "mouthPress_L" | "mouthPress_R" => Some((i, 0.9)),
+            "mouthRollLower" => Some((i, 0.5)),
+            _ => None,
+        })
+        .collect();
+    let mut presses = Vec::new();
+    if params.lip_press_interval_secs > 0.0 && !press.is_empty() {
+        let mut tp = params.neutral_lead_secs + rng.random_range(0.3..1.0);
+        while tp < duration {
+            presses.push(tp);
+            tp += params.lip_press_interval_secs * rng.random_range(0.5..1.5);
+        }
+    }
     (0..frame_count)
         .map(|f| {
             let t = f as f64 / fps;
@@ -169,6 +202,20 @@ pub fn random_curves(
                 .fold(0.0, f64::max);
             for &i in &blink {
                 w[i] = closure;
+            }
+            let pressed = presses
+                .iter()
+                .map(|&tp| {
+                    let s = (t - tp) / params.lip_press_duration_secs;
+                    if (0.0..=1.0).contains(&s) {
+                        smoothstep(2.0 * (1.0 - (2.0 * s - 1.0).abs()))
+                    } else {
+                        0.0
+                    }
+                })
+                .fold(0.0, f64::max);
+            for &(i, peak) in &press {
+                w[i] = w[i].max(peak * pressed);
             }
             w
         })
@@ -275,6 +322,21 @@ mod tests {
             w.iter().any(|x| x[0] > 0.1 || x[3] > 0.1),
             "some expression"
         );
+    }
+
+    #[test]
+    fn lip_presses_when_asked() {
+        let names = ["jawOpen", "mouthPress_L", "mouthPress_R", "mouthRollLower"];
+        let off = random_curves(&names, 600, 60.0, &AnimationParams::default());
+        let p = AnimationParams {
+            lip_press_interval_secs: 2.0,
+            ..Default::default()
+        };
+        let on = random_curves(&names, 600, 60.0, &p);
+        let pressed = |w: &Vec<Vec<f64>>| w.iter().filter(|x| x[1] > 0.85 && x[2] > 0.85).count();
+        assert!(pressed(&on) >= 20, "{}", pressed(&on));
+        assert!(pressed(&on) > pressed(&off));
+        assert!(on[20].iter().all(|&x| x == 0.0), "neutral lead");
     }
 
     #[test]

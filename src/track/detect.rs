@@ -3,7 +3,10 @@
 //! 1. Local mean `μ(x)` over a `(2r+1)²` box (running column sums), so uneven light
 //!    cancels.
 //! 2. Candidate pixels: `μ(x) − I(x) ≥ c` for dark dots (`I(x) − μ(x) ≥ c` for bright).
-//! 3. 8-connected components of candidates, within the region of interest and mask.
+//! 3. 8-connected components of candidates, within the region of interest and mask. A
+//!    component that fails the filters of step 4 (a dot touching a dark crease or the
+//!    shading at the face's edge) is split by raising the contrast threshold, up to four
+//!    times (the nested regions of MSER, Matas et al. 2002).
 //! 4. Filters: area, roundness `√(λ_min/λ_max)` of the second moments, and contrast against
 //!    the median of a ring of background around the blob (which rejects the dark halo that a
 //!    specular highlight leaves in the local mean, and soft shading gradients).
@@ -122,7 +125,8 @@ pub fn detect_markers(image: &GrayImage, params: &DetectParams) -> Vec<Detection
     let bw = x1 - x0;
     let bh = y1 - y0;
     let c = params.min_contrast_dn;
-    let mut mask = vec![false; bw * bh];
+    // Local contrast of candidate pixels (0: not a candidate), saturated at 255.
+    let mut mask = vec![0u8; bw * bh];
     let mut col = vec![0u32; rw];
     let mut prefix = vec![0u32; rw + 1];
     let (mut ya_prev, mut yb_prev) = (gy0, gy0);
@@ -157,31 +161,33 @@ pub fn detect_markers(image: &GrayImage, params: &DetectParams) -> Vec<Detection
             let area = (xb - xa) as u32 * rows;
             let sum = prefix[xb] - prefix[xa];
             let v = u32::from(v) * area;
-            *m = if params.bright {
-                v >= sum + c * area
+            let diff = if params.bright {
+                v.checked_sub(sum)
             } else {
-                v + c * area <= sum
+                sum.checked_sub(v)
+            };
+            *m = match diff {
+                Some(d) if d >= c * area => (d / area).clamp(1, 255) as u8,
+                _ => 0,
             };
         }
     }
     // Connected components (8-connectivity) by flood fill.
     let mut out = Vec::new();
     let mut stack = Vec::new();
-    let mut pixels: Vec<(usize, usize)> = Vec::new();
+    let mut pixels: Vec<(usize, usize, u8)> = Vec::new();
     for start in 0..mask.len() {
-        if !mask[start] {
+        if mask[start] == 0 {
             continue;
         }
-        mask[start] = false;
-        stack.push(start);
+        let level = mask[start];
+        mask[start] = 0;
+        stack.push((start, level));
         pixels.clear();
-        let mut too_big = false;
-        while let Some(i) = stack.pop() {
+        while let Some((i, lv)) = stack.pop() {
             let (x, y) = (i % bw, i / bw);
-            if pixels.len() <= params.max_area_px {
-                pixels.push((x + x0, y + y0));
-            } else {
-                too_big = true;
+            if pixels.len() < MAX_COMPONENT_PX {
+                pixels.push((x + x0, y + y0, lv));
             }
             for dy in -1i64..=1 {
                 for dx in -1i64..=1 {
@@ -191,21 +197,121 @@ pub fn detect_markers(image: &GrayImage, params: &DetectParams) -> Vec<Detection
                         continue;
                     }
                     let j = ny as usize * bw + nx as usize;
-                    if mask[j] {
-                        mask[j] = false;
+                    if mask[j] != 0 {
+                        stack.push((j, mask[j]));
+                        mask[j] = 0;
+                    }
+                }
+            }
+        }
+        split_and_measure(image, &pixels, c, 0, params, &mut out);
+    }
+    out
+}
+
+/// Largest component kept whole for splitting, pixels.
+const MAX_COMPONENT_PX: usize = 20_000;
+
+/// Smallest roundness of a dot found by splitting a component.
+const SPLIT_MIN_ROUNDNESS: f64 = 0.3;
+
+/// Smallest peak contrast of a dot found by splitting a component, in units of
+/// [`DetectParams::min_peak_contrast_dn`] (ink is much darker than a crease).
+const SPLIT_MIN_CONTRAST_FACTOR: f64 = 2.0;
+
+/// Smallest area of a dot found by splitting a component, in units of
+/// [`DetectParams::min_area_px`].
+const SPLIT_MIN_AREA_FACTOR: usize = 2;
+
+/// Measures a component of candidate pixels `(x, y, contrast)`; when it is too big or not
+/// round (a dot touching a dark shading band or crease), splits it by raising the contrast
+/// threshold (×1.6 per level, up to 4 levels) and measures the parts: dots inside
+/// uneven shading are found like MSER regions.
+fn split_and_measure(
+    image: &GrayImage,
+    pixels: &[(usize, usize, u8)],
+    threshold: u32,
+    depth: usize,
+    params: &DetectParams,
+    out: &mut Vec<Detection>,
+) {
+    if pixels.len() < params.min_area_px {
+        return;
+    }
+    if pixels.len() <= params.max_area_px {
+        let xy: Vec<(usize, usize)> = pixels.iter().map(|&(x, y, _)| (x, y)).collect();
+        let found = if depth == 0 {
+            measure_blob(image, &xy, params)
+        } else {
+            // Parts of a split component: only clearly round dots of some size (the
+            // fragments of a crease are small and thin).
+            measure_blob(image, &xy, params).filter(|d| {
+                d.roundness >= SPLIT_MIN_ROUNDNESS
+                    && d.area_px >= SPLIT_MIN_AREA_FACTOR * params.min_area_px
+                    && d.contrast_dn >= SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn
+            })
+        };
+        if let Some(d) = found {
+            out.push(d);
+            return;
+        }
+    }
+    if depth >= 4 {
+        return;
+    }
+    let next = (threshold as f64 * 1.6).ceil() as u32 + 1;
+    if next > 255 {
+        return;
+    }
+    let kept: Vec<(usize, usize, u8)> = pixels
+        .iter()
+        .copied()
+        .filter(|p| u32::from(p.2) >= next)
+        .collect();
+    if kept.len() < params.min_area_px {
+        return;
+    }
+    // Components of the kept pixels, on a grid over their bounding box.
+    let (bx0, by0, bx1, by1) = kept.iter().fold(
+        (usize::MAX, usize::MAX, 0, 0),
+        |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
+    );
+    let (gw, gh) = (bx1 - bx0 + 1, by1 - by0 + 1);
+    let mut grid = vec![0u8; gw * gh];
+    for &(x, y, lv) in &kept {
+        grid[(y - by0) * gw + (x - bx0)] = lv;
+    }
+    let mut stack = Vec::new();
+    let mut part = Vec::new();
+    for &(sx, sy, _) in &kept {
+        let s0 = (sy - by0) * gw + (sx - bx0);
+        if grid[s0] == 0 {
+            continue;
+        }
+        stack.push(s0);
+        part.clear();
+        part.push((sx, sy, grid[s0]));
+        grid[s0] = 0;
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % gw, i / gw);
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let nx = x as i64 + dx;
+                    let ny = y as i64 + dy;
+                    if nx < 0 || ny < 0 || nx >= gw as i64 || ny >= gh as i64 {
+                        continue;
+                    }
+                    let j = ny as usize * gw + nx as usize;
+                    if grid[j] != 0 {
+                        part.push((nx as usize + bx0, ny as usize + by0, grid[j]));
+                        grid[j] = 0;
                         stack.push(j);
                     }
                 }
             }
         }
-        if too_big || pixels.len() < params.min_area_px {
-            continue;
-        }
-        if let Some(d) = measure_blob(image, &pixels, params) {
-            out.push(d);
-        }
+        split_and_measure(image, &part, next, depth + 1, params, out);
     }
-    out
 }
 
 /// Filters and measures one blob; `None` when it fails a filter.

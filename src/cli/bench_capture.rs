@@ -1,0 +1,306 @@
+//! `helmcap bench capture`: detection + tracking + triangulation throughput, and labeling
+//! accuracy at centroid noise levels, on a synthetic session.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use helmcap::capture::{Replay, ReplayParams, StereoFrame};
+use helmcap::dataset::MarkerLayout;
+use helmcap::dataset::actor::{Actor, ActorParams};
+use helmcap::synth::{AnimationParams, Performer, SynthParams, animation, default_rig};
+use helmcap::track::{DetectParams, Detection, LabelParams, Labeler, detect_markers};
+use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
+
+/// Arguments of `helmcap bench capture`.
+#[derive(Debug, clap::Args)]
+pub struct CaptureBenchArgs {
+    /// A session rendered by `helmcap synth` with the built-in actor (default: render one
+    /// into a temporary folder).
+    #[arg(long)]
+    session: Option<PathBuf>,
+    /// Frames to render when no session is given.
+    #[arg(long, default_value_t = 300)]
+    frames: usize,
+    /// Number of timed passes over the session.
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Extra Gaussian centroid noise levels (pixels, comma-separated) for the accuracy
+    /// table.
+    #[arg(long, value_delimiter = ',', default_value = "0,0.25,0.5,1")]
+    noise_px: Vec<f64>,
+}
+
+/// Runs the capture benchmark and prints the figures.
+pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
+    let actor = Actor::new(&ActorParams::default()).context("building the built-in actor")?;
+    let layout = MarkerLayout::parse_csv(
+        include_str!("../../configs/markers/builtin-actor.csv"),
+        "builtin-actor.csv",
+    )?;
+    let tmp;
+    let session = match &args.session {
+        Some(s) => s.clone(),
+        None => {
+            tmp = super::bench::tempfile_dir()?;
+            let rig = default_rig().context("the built-in rig")?;
+            let performer = Performer::Actor(Box::new(actor.clone()));
+            let names = performer.expression_names();
+            let anim = AnimationParams {
+                lip_press_interval_secs: 1.5,
+                ..AnimationParams::default()
+            };
+            let weights = animation::random_curves(&names, args.frames.max(1), 60.0, &anim);
+            let params = SynthParams {
+                slip_mm: 1.5,
+                slip_deg: 1.0,
+                ..SynthParams::default()
+            };
+            eprintln!("rendering {} frames...", weights.len());
+            helmcap::synth::render_session(
+                &performer,
+                &layout,
+                &rig,
+                &weights,
+                &params,
+                &tmp,
+                false,
+                &|| {},
+            )?;
+            tmp.clone()
+        }
+    };
+    let replay = Replay::open(&session, ReplayParams::default())?;
+    let rig = replay
+        .rig()
+        .context("the session has no calibration")?
+        .clone();
+    let frames: Vec<StereoFrame> = replay.collect::<Result<_, _>>()?;
+    anyhow::ensure!(!frames.is_empty(), "the session has no frames");
+    let neutral: Vec<Point3<f64>> = layout
+        .markers
+        .iter()
+        .map(|m| actor.neutral().positions[m.vertex as usize])
+        .collect();
+    let new_labeler = || {
+        Labeler::new(
+            rig.clone(),
+            &layout,
+            neutral.clone(),
+            LabelParams::default(),
+        )
+    };
+
+    // Throughput: detection in predicted ROIs (both cameras in parallel) + labeling and
+    // triangulation.
+    let mut rates = Vec::new();
+    let mut labeled = 0;
+    for _ in 0..args.runs.max(1) {
+        let mut labeler = new_labeler()?;
+        let t = Instant::now();
+        labeled = 0;
+        for f in &frames {
+            let rois = labeler.predicted_rois();
+            let detect = |c: usize| {
+                let p = DetectParams {
+                    roi: rois[c],
+                    ..DetectParams::default()
+                };
+                detect_markers(&f.images[c], &p)
+            };
+            let (a, b) = rayon::join(|| detect(0), || detect(1));
+            labeled += labeler.process(f.index, [&a, &b]).stats.labeled;
+        }
+        rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
+    }
+    rates.sort_by(f64::total_cmp);
+    let (w, h) = (rig.cam0.width_px, rig.cam0.height_px);
+    println!(
+        "capture {w}×{h}, {} stereo frames, median of {} runs: {:.0} stereo frames/s \
+         (min {:.0}, max {:.0}); {:.1} markers labeled per frame",
+        frames.len(),
+        rates.len(),
+        rates[rates.len() / 2],
+        rates[0],
+        rates[rates.len() - 1],
+        labeled as f64 / frames.len() as f64
+    );
+
+    // Accuracy against ground truth at added centroid noise.
+    let projections = read_projections(&session, &layout)?;
+    let truth = read_truth_in_cam0(&session, &layout)?;
+    let detections: Vec<[Vec<Detection>; 2]> = frames
+        .iter()
+        .map(|f| [0, 1].map(|c| detect_markers(&f.images[c], &DetectParams::default())))
+        .collect();
+    let f_px = rig.cam0.fx().min(rig.cam1.fx());
+    let b_mm = rig.baseline_mm();
+    println!(
+        "added σ px | visible | labeled right (% of visible) | wrong | bundle RMS mm | σz bound mm | RMS / bound"
+    );
+    let base_sigma = 0.24; // Centroid RMS error of the detector on these images (tests).
+    for &sigma in &args.noise_px {
+        let mut labeler = new_labeler()?;
+        let mut rng = Jitter(0x006e_6f69_7365 ^ sigma.to_bits());
+        let (mut visible, mut right, mut wrong, mut sq, mut z_sum) = (0, 0, 0, 0.0, 0.0);
+        for (f, dets) in frames.iter().zip(&detections) {
+            let noisy: Vec<Vec<Detection>> = dets
+                .iter()
+                .map(|d| {
+                    d.iter()
+                        .map(|x| Detection {
+                            centre_px: Point2::new(
+                                x.centre_px.x + sigma * rng.normal(),
+                                x.centre_px.y + sigma * rng.normal(),
+                            ),
+                            ..*x
+                        })
+                        .collect()
+                })
+                .collect();
+            let out = labeler.process(f.index, [&noisy[0], &noisy[1]]);
+            let gt = [
+                projections.get(&(f.index, 0)),
+                projections.get(&(f.index, 1)),
+            ];
+            let (Some(g0), Some(g1)) = (gt[0], gt[1]) else {
+                continue;
+            };
+            let gt = [g0, g1];
+            visible += (0..layout.len()).filter(|&k| g0[k].1 && g1[k].1).count();
+            for (k, m) in out.markers.iter().enumerate() {
+                let Some(m) = m else { continue };
+                let ok =
+                    (0..2).all(|c| owner(gt[c], &dets[c][m.detections[c]].centre_px) == Some(k));
+                if ok {
+                    right += 1;
+                    if let Some(t) = truth.get(&f.index) {
+                        sq += (m.bundle.point_in_cam0 - t[k]).norm_squared();
+                        z_sum += t[k].z;
+                    }
+                } else {
+                    wrong += 1;
+                }
+            }
+        }
+        let rms = (sq / right.max(1) as f64).sqrt();
+        let z = z_sum / right.max(1) as f64;
+        let s_px = (base_sigma * base_sigma + sigma * sigma).sqrt();
+        let bound = z * z * s_px / (f_px * b_mm);
+        println!(
+            "{sigma:10.2} | {visible:7} | {right:7} ({:5.2} %)             | {wrong:5} | {rms:13.3} | {bound:11.3} | {:.2}",
+            100.0 * right as f64 / visible.max(1) as f64,
+            rms / bound
+        );
+    }
+    println!(
+        "(σz = z²·σpx/(f·b) with z the mean marker depth, f = {f_px:.1} px, b = {b_mm:.1} mm, \
+         σpx = √({base_sigma}² + added²) per coordinate; RMS is the full 3D error)"
+    );
+    if args.session.is_none() {
+        let _ = std::fs::remove_dir_all(&session);
+    }
+    Ok(())
+}
+
+/// The marker whose true projection is nearest `px`, within 4 px.
+fn owner(gt: &[(Point2<f64>, bool)], px: &Point2<f64>) -> Option<usize> {
+    gt.iter()
+        .enumerate()
+        .map(|(k, (p, _))| (k, (p - px).norm()))
+        .filter(|(_, d)| *d < 4.0)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(k, _)| k)
+}
+
+type Projections = HashMap<(usize, usize), Vec<(Point2<f64>, bool)>>;
+
+fn read_projections(dir: &Path, layout: &MarkerLayout) -> anyhow::Result<Projections> {
+    let path = dir.join("gt/projections.csv");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out: Projections = HashMap::new();
+    for (n, line) in text.lines().enumerate().skip(1) {
+        let bad = || anyhow::anyhow!("{}:{}: malformed row", path.display(), n + 1);
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() < 6 {
+            return Err(bad());
+        }
+        let cam = usize::from(f[1] == "cam1");
+        let frame: usize = f[0].parse().map_err(|_| bad())?;
+        let k = layout.index_of(f[2]).ok_or_else(bad)?;
+        let entry = out
+            .entry((frame, cam))
+            .or_insert_with(|| vec![(Point2::origin(), false); layout.len()]);
+        entry[k] = (
+            Point2::new(
+                f[3].parse().map_err(|_| bad())?,
+                f[4].parse().map_err(|_| bad())?,
+            ),
+            f[5] == "1",
+        );
+    }
+    Ok(out)
+}
+
+fn read_truth_in_cam0(
+    dir: &Path,
+    layout: &MarkerLayout,
+) -> anyhow::Result<HashMap<usize, Vec<Point3<f64>>>> {
+    let path = dir.join("gt/head_pose.csv");
+    let poses =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut pose = HashMap::new();
+    for (n, line) in poses.lines().enumerate().skip(1) {
+        let v: Vec<f64> = line
+            .split(',')
+            .map(str::parse)
+            .collect::<Result<_, _>>()
+            .with_context(|| format!("{}:{}", path.display(), n + 1))?;
+        anyhow::ensure!(v.len() >= 8, "{}:{}: malformed row", path.display(), n + 1);
+        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[1], v[2], v[3], v[4]));
+        pose.insert(v[0] as usize, (q, Vector3::new(v[5], v[6], v[7])));
+    }
+    let path = dir.join("gt/bundles.csv");
+    let bundles =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out: HashMap<usize, Vec<Point3<f64>>> = HashMap::new();
+    for (n, line) in bundles.lines().enumerate().skip(1) {
+        let bad = || anyhow::anyhow!("{}:{}: malformed row", path.display(), n + 1);
+        let f: Vec<&str> = line.split(',').collect();
+        if f.len() < 5 {
+            return Err(bad());
+        }
+        let frame: usize = f[0].parse().map_err(|_| bad())?;
+        let k = layout.index_of(f[1]).ok_or_else(bad)?;
+        let p = Point3::new(
+            f[2].parse().map_err(|_| bad())?,
+            f[3].parse().map_err(|_| bad())?,
+            f[4].parse().map_err(|_| bad())?,
+        );
+        let (q, t) = pose.get(&frame).ok_or_else(bad)?;
+        out.entry(frame)
+            .or_insert_with(|| vec![Point3::origin(); layout.len()])[k] = q * p + t;
+    }
+    Ok(out)
+}
+
+/// Seeded Gaussian jitter (SplitMix64 + Box-Muller).
+struct Jitter(u64);
+
+impl Jitter {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn normal(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
