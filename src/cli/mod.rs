@@ -6,6 +6,7 @@ mod dataset;
 mod demo;
 mod enhance;
 mod markers;
+mod record;
 mod retime;
 mod solve;
 mod synth;
@@ -48,6 +49,8 @@ enum Command {
     Bench(bench::BenchCommand),
     /// Render a synthetic helmet recording with ground truth, or calibration target images.
     Synth(synth::SynthArgs),
+    /// Record the live cameras (and the sync box's timecode) to a session folder.
+    Record(record::RecordArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -78,6 +81,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
+        Command::Record(a) => record::run(a),
     }
 }
 
