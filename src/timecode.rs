@@ -260,7 +260,8 @@ impl Timecode {
             return Err(err("field out of range"));
         }
         let drop = rate.dropped_per_minute();
-        if drop > 0 && p.seconds == 0 && u64::from(p.frames) < drop && p.minutes % 10 != 0 {
+        if drop > 0 && p.seconds == 0 && u64::from(p.frames) < drop && !p.minutes.is_multiple_of(10)
+        {
             return Err(err("drop-frame counting skips this label"));
         }
         let n = u64::from(rate.nominal);

@@ -261,7 +261,7 @@ impl Replay {
     /// moves past it).
     pub fn next_frame(&mut self) -> Option<Result<StereoFrame, CaptureError>> {
         loop {
-            let (index, ts, tc) = self.info.frames.get(self.next)?.clone();
+            let (index, ts, tc) = *self.info.frames.get(self.next)?;
             self.next += 1;
             let result = self.load(index, &self.info.cameras[0]).and_then(|a| {
                 self.load(index, &self.info.cameras[1]).and_then(|b| {

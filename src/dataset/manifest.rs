@@ -21,9 +21,18 @@
 //! lateral_axis = [0.0, 1.0, 0.0]
 //! forward = [0.0, 0.0, 1.0]
 //! weights = "jaw_weights.txt"                   # one skinning weight per vertex and line
+//! [regions]                                     # optional: enhancement's voluntary regions
+//! mouth_l = "1200..1350, 1402"                  # core vertices: indices and inclusive ranges
+//! mouth_r = "1351..1401"
+//! brow_l = "300..360"
+//! brow_r = "361..420"
 //! ```
 //!
-//! `root`, `[jaw]` and a shape's `jaw` are helmcap extensions of the contract; a manifest
+//! `[regions]` gives the cores of the four voluntary regions of detail enhancement
+//! (Bermano et al. 2014 §4.3: the actor's left and right mouth and brow); without it they
+//! are derived from how the shapes move (`enhance::VoluntaryRegions::from_motion`).
+//!
+//! `root`, `[jaw]`, `[regions]` and a shape's `jaw` are helmcap extensions of the contract; a manifest
 //! without them means exactly what the contract says.
 
 use std::collections::{BTreeMap, HashMap};
@@ -145,6 +154,17 @@ struct ManifestToml {
     shape: Vec<ShapeToml>,
     #[serde(default)]
     jaw: Option<JawToml>,
+    #[serde(default)]
+    regions: Option<RegionsToml>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RegionsToml {
+    mouth_l: String,
+    mouth_r: String,
+    brow_l: String,
+    brow_r: String,
 }
 
 #[derive(Debug, Deserialize)]
@@ -230,6 +250,9 @@ pub struct Manifest {
     pub shapes: Vec<ShapeEntry>,
     /// Jaw rig, when given.
     pub jaw: Option<JawEntry>,
+    /// Core vertices of the four voluntary regions (`mouth_l`, `mouth_r`, `brow_l`,
+    /// `brow_r`), when given (checked against the vertex count when the dataset loads).
+    pub regions: Option<[Vec<u32>; 4]>,
 }
 
 impl Manifest {
@@ -422,6 +445,36 @@ impl Manifest {
             }
         };
 
+        let regions = match &raw.regions {
+            None => None,
+            Some(r) => {
+                let mut cores: [Vec<u32>; 4] = Default::default();
+                for (slot, (name, text)) in cores.iter_mut().zip([
+                    ("mouth_l", &r.mouth_l),
+                    ("mouth_r", &r.mouth_r),
+                    ("brow_l", &r.brow_l),
+                    ("brow_r", &r.brow_r),
+                ]) {
+                    *slot = parse_vertex_list(text).ok_or_else(|| {
+                        DatasetError::invalid(
+                            path,
+                            format!(
+                                "regions.{name} {text:?} is not a list of vertex indices and \
+                                 inclusive ranges like \"10..20, 25\""
+                            ),
+                        )
+                    })?;
+                    if slot.is_empty() {
+                        return Err(DatasetError::invalid(
+                            path,
+                            format!("regions.{name} is empty"),
+                        ));
+                    }
+                }
+                Some(cores)
+            }
+        };
+
         Ok(Manifest {
             path: path.to_path_buf(),
             units,
@@ -429,6 +482,7 @@ impl Manifest {
             face_vertices,
             shapes,
             jaw,
+            regions,
         })
     }
 
@@ -561,6 +615,14 @@ impl Manifest {
             }
             None => 0..=u32::try_from(nv.saturating_sub(1)).unwrap_or(u32::MAX),
         };
+        if let Some(cores) = &self.regions
+            && let Some(v) = cores.iter().flatten().find(|&&v| v as usize >= nv)
+        {
+            return Err(DatasetError::invalid(
+                &self.path,
+                format!("regions: vertex {v} is past the neutral's {nv} vertices"),
+            ));
+        }
 
         let jaw = match &self.jaw {
             None => None,
@@ -593,6 +655,22 @@ pub fn parse_vertex_range(s: &str) -> Option<RangeInclusive<u32>> {
     let a: u32 = a.trim().parse().ok()?;
     let b: u32 = b.trim().parse().ok()?;
     (a <= b).then_some(a..=b)
+}
+
+/// Parses a comma-separated list of vertex indices and inclusive ranges (`"3, 10..20"`),
+/// sorted and without repeats; `None` on any malformed item.
+pub fn parse_vertex_list(s: &str) -> Option<Vec<u32>> {
+    let mut out = Vec::new();
+    for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
+        if item.contains("..") {
+            out.extend(parse_vertex_range(item)?);
+        } else {
+            out.push(item.parse().ok()?);
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
+    Some(out)
 }
 
 /// Reads one skinning weight per line (blank lines and `#` comments skipped).
@@ -827,6 +905,17 @@ mod tests {
         assert_eq!(ds.shapes[2].positions[0], Point3::new(0.0, 0.0, 5.0));
         assert_eq!(ds.shapes[2].positions[1], Point3::new(30.0, 0.0, 0.0));
         assert_eq!(ds.face_vertices, 0..=2);
+        assert_eq!(parse_vertex_list(" 7, 1..3,2 ,"), Some(vec![1, 2, 3, 7]));
+        assert_eq!(parse_vertex_list("1..x"), None);
+        assert_eq!(parse_vertex_list("-1"), None);
+        let with_regions = write_manifest(
+            dir.path(),
+            "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\n\
+             mouth_r = \"1\"\nbrow_l = \"2..3\"\nbrow_r = \"3\"\n",
+        );
+        let m = Manifest::read(&with_regions).unwrap();
+        assert_eq!(m.regions, Some([vec![0], vec![1], vec![2, 3], vec![3]]));
+        assert!(m.load(&|_, _| {}).is_ok());
         assert!(!ds.is_face_vertex(3));
     }
 
@@ -874,6 +963,18 @@ mod tests {
                 "unknown field",
             ),
             ("units = \"mm\"\n", "missing field"),
+            (
+                "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\nmouth_r = \"1\"\nbrow_l = \"2\"\nbrow_r = \"9\"\n",
+                "regions: vertex 9 is past",
+            ),
+            (
+                "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\nmouth_r = \"1\"\nbrow_l = \"a\"\nbrow_r = \"3\"\n",
+                "regions.brow_l \"a\" is not a list",
+            ),
+            (
+                "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\n",
+                "missing field",
+            ),
             (
                 "units = \"mm\"\nneutral = \"neutral.obj\"\n[[shape]]\nname = \"a\"\nfile = \"neutral.obj\"\n[[shape]]\nname = \"a\"\nfile = \"neutral.obj\"\n",
                 "used twice",

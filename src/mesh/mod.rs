@@ -16,6 +16,7 @@ pub mod geometry;
 pub mod laplacian;
 pub mod obj;
 pub mod ply;
+pub mod subdivide;
 pub mod topology;
 
 use nalgebra::{Point2, Point3};
@@ -33,6 +34,7 @@ pub use obj::{
     read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
 };
 pub use ply::write_ply;
+pub use subdivide::{Subdivision, SubdivisionScheme, subdivide_levels};
 pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
 
 /// Errors from building, reading or writing a mesh.
