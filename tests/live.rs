@@ -1,6 +1,7 @@
 //! `helmcap record` (and `helmcap live`) with test cameras and a pseudo-terminal sync box:
 //! garbage bytes, a bad checksum, the device vanishing mid-run, corrupt and stalled frames,
 //! a slow disk, Ctrl-C. No panic, every frame recorded or counted, counts reported.
+#![allow(clippy::unwrap_used)]
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
