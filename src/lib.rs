@@ -13,8 +13,11 @@
 //! - [`track`]: marker detection in images.
 //! - [`stereo`]: triangulation of stereo observations into bundles.
 //! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
-//! - [`align`]: rigid alignment (Horn's method).
+//! - [`align`]: rigid alignment (Horn's method, robust variant) and head stabilization.
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
+//! - [`pipeline`]: the streaming pipeline (stage threads, frame envelope, metrics, the
+//!   sink interface).
+//! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D).
 
 pub mod align;
 pub mod atomic_file;
@@ -26,6 +29,8 @@ pub mod dataset;
 pub mod enhance;
 pub mod lgi;
 pub mod mesh;
+pub mod pipeline;
+pub mod sink;
 pub mod solve;
 pub mod stereo;
 pub mod synth;

@@ -417,3 +417,80 @@ fn bad_configs_and_missing_cameras_are_one_clear_error() {
         "{log}"
     );
 }
+
+/// Renders a small synthetic session of the built-in actor (markers, ground truth).
+fn synth_session(dir: &Path, frames: usize) -> PathBuf {
+    let s = dir.join("synth");
+    let out = helmcap()
+        .args(["synth", "--out"])
+        .arg(&s)
+        .args(["-n", &frames.to_string()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out));
+    s
+}
+
+#[test]
+fn live_runs_the_pipeline_on_test_cameras_and_a_flaky_sync_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 60;
+    let session = synth_session(dir.path(), frames);
+    let link = dir.path().join("syncbox");
+    let cfg = config(
+        dir.path(),
+        &format!(
+            "[syncbox]\nport = \"{}\"\ntimeout_ms = 150\nretry_ms = 50\n\
+             [test]\ncam0 = {{ corrupt = [7] }}\n",
+            link.display()
+        ),
+    );
+    let out = dir.path().join("live");
+    let child = helmcap()
+        .args(["live", "--config"])
+        .arg(&cfg)
+        .arg("--test-source")
+        .arg(&session)
+        .arg("--out")
+        .arg(&out)
+        .arg("--cache-dir")
+        .arg(dir.path().join("cache"))
+        .args(["--export", "c3d"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let sync = sync_box(link, stop.clone(), (0.3, 0.6));
+    let result = child.wait_with_output().unwrap();
+    stop.store(true, Ordering::Relaxed);
+    sync.join().unwrap();
+    let log = text(&result);
+    assert!(result.status.success(), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("live_stats.json")).unwrap())
+            .unwrap();
+    // Every camera frame went through the pipeline, was dropped by it (live: counted), or
+    // is a counted camera gap.
+    let n = |v: &serde_json::Value| v.as_u64().unwrap();
+    assert_eq!(
+        n(&m["frames_out"]) + n(&m["frames_dropped"]),
+        n(&m["frames_in"]),
+        "{m:#}"
+    );
+    assert_eq!(n(&m["frames_in"]), n(&stats["frames_out"]), "{stats:#}");
+    assert_eq!(
+        n(&stats["frames_out"]) + n(&stats["gaps"]),
+        frames as u64,
+        "{stats:#}"
+    );
+    assert!(n(&stats["gaps"]) >= 1, "{stats:#}");
+    assert!(n(&m["frames_out"]) >= 1, "{m:#}");
+    assert!(m["latency_ms"]["end_to_end"]["p99"].is_number());
+    assert!(n(&stats["syncbox"]["parser"]["lines_ok"]) >= 1, "{stats:#}");
+    assert!(out.join("bundles.csv").is_file() && out.join("bundles.c3d").is_file());
+    assert!(log.contains("timecode:"), "{log}");
+}

@@ -226,6 +226,16 @@ impl Replay {
         self.rig.as_ref()
     }
 
+    /// Keeps only the frames whose number (as in `frames.csv`) lies in `range`, from the
+    /// start of the replay (to split a long take); returns how many remain.
+    pub fn select_frames(&mut self, range: std::ops::RangeInclusive<usize>) -> usize {
+        self.info
+            .frames
+            .retain(|(index, _, _)| range.contains(index));
+        self.next = 0;
+        self.info.frames.len()
+    }
+
     /// Counts so far.
     pub fn stats(&self) -> ReplayStats {
         self.stats

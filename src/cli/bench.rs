@@ -20,6 +20,8 @@ pub enum BenchCommand {
     },
     /// Time detail enhancement: precomputation, memory and per-frame time.
     Enhance(super::enhance::EnhanceBenchArgs),
+    /// Replay throughput, live-paced latency and a memory soak of the pipeline.
+    Pipeline(super::bench_pipeline::PipelineBenchArgs),
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -62,6 +64,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             println!("  from cache        {:8.1} ms", cached * 1e3);
         }
         BenchCommand::Enhance(a) => super::enhance::run_bench(a)?,
+        BenchCommand::Pipeline(a) => super::bench_pipeline::run(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {

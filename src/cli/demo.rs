@@ -1,14 +1,19 @@
 //! `helmcap demo`: the first thing a new user runs.
 //!
-//! Builds the built-in synthetic actor, writes it as a dataset, generates its marker layout
-//! and prints a summary of each step.
+//! Builds the built-in synthetic actor, renders a short helmet session of it (with helmet
+//! slip and ground truth), replays it through the whole pipeline and prints what came out
+//! and how close it is to the truth; opens the viewer when one is installed.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use helmcap::dataset::markers::{LayoutParams, generate_layout};
-use helmcap::dataset::{actor, write_dataset};
+use helmcap::dataset::actor;
+use helmcap::synth::{
+    AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
+};
+
+use super::replay::{Export, ReplayArgs, load_layout, print_summary, replay};
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
@@ -18,44 +23,126 @@ pub struct DemoArgs {
     /// Identity seed of the built-in actor (default: the standard actor).
     #[arg(long)]
     seed: Option<u64>,
+    /// Frames to render and replay.
+    #[arg(long, short = 'n', default_value_t = 120)]
+    frames: usize,
+    /// Also add the actor's fine detail to every frame (slower).
+    #[arg(long)]
+    enhance: bool,
+    /// Do not open the viewer at the end.
+    #[arg(long)]
+    no_viewer: bool,
 }
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    if args.frames == 0 {
+        anyhow::bail!("--frames must be at least 1");
+    }
+    let dataset = match args.seed {
+        Some(s) => format!("builtin:{s}"),
+        None => "builtin".to_string(),
+    };
     let t = Instant::now();
     let params = match args.seed {
         Some(s) => actor::ActorParams::from_seed(s),
         None => actor::ActorParams::default(),
     };
     let actor = actor::Actor::new(&params).context("building the built-in actor")?;
-    let ds = actor.to_dataset();
     println!(
-        "[1/3] built-in actor: {} vertices, {} polygons, {} expressions ({:.0} ms)",
-        ds.vertex_count(),
-        ds.neutral.face_count(),
-        ds.shapes.len(),
+        "[1/3] built-in actor: {} vertices, {} expressions ({:.0} ms)",
+        actor.to_dataset().vertex_count(),
+        actor.to_dataset().shapes.len(),
         t.elapsed().as_secs_f64() * 1e3
     );
-    let dataset_dir = args.out.join("dataset");
-    let manifest = write_dataset(&ds, &dataset_dir)
-        .with_context(|| format!("writing {}", dataset_dir.display()))?;
-    println!("[2/3] dataset written: {}", manifest.display());
-    let layout = generate_layout(&ds, &LayoutParams::default()).context("generating markers")?;
-    let markers = args.out.join("markers.csv");
-    layout
-        .write_csv(&markers)
-        .with_context(|| format!("writing {}", markers.display()))?;
-    let stable = layout.stabilizing_count();
-    println!(
-        "[3/3] marker layout: {} markers, {} stabilizing, written to {}",
-        layout.len(),
-        stable,
-        markers.display()
+
+    let t = Instant::now();
+    let session = args.out.join("session");
+    let layout = load_layout(&dataset, None)?;
+    let performer = Performer::Actor(Box::new(actor));
+    let names = performer.expression_names();
+    let synth = SynthParams {
+        slip_mm: 1.5,
+        slip_deg: 1.0,
+        ..SynthParams::default()
+    };
+    let weights =
+        animation::random_curves(&names, args.frames, synth.fps, &AnimationParams::default());
+    let rig = default_rig().context("the built-in rig")?;
+    let bar = indicatif::ProgressBar::new(args.frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("rendering [{bar:30}] {pos}/{len} frames")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    let summary = render_session(
+        &performer,
+        &layout,
+        &rig,
+        &weights,
+        &synth,
+        &session,
+        true,
+        &|| bar.inc(1),
+    )
+    .with_context(|| format!("rendering {}", session.display()))?;
+    bar.finish_and_clear();
     println!(
-        "done. Inspect with: helmcap dataset info --dataset {}",
-        manifest.display()
+        "[2/3] synthetic session: {} frames at {} fps, 1280×1024 stereo, helmet slip on, {} markers ({:.1} s) -> {}",
+        summary.frames,
+        synth.fps,
+        summary.markers,
+        t.elapsed().as_secs_f64(),
+        session.display()
     );
+
+    let rrd = super::replay::rerun_available().then(|| args.out.join("demo.rrd"));
+    let replay_args = ReplayArgs {
+        session: session.clone(),
+        calib: None,
+        dataset,
+        markers: None,
+        out: args.out.join("replay"),
+        rrd: rrd.clone(),
+        export: vec![Export::Usd, Export::Obj, Export::C3d],
+        enhance: args.enhance,
+        frames: None,
+        no_solve: false,
+        skip_bad_frames: false,
+        queue: 4,
+        no_cache: false,
+        cache_dir: None,
+        quiet: false,
+    };
+    let t = Instant::now();
+    let outcome = replay(&replay_args)?;
+    println!(
+        "[3/3] replayed through the pipeline ({:.1} s):",
+        t.elapsed().as_secs_f64()
+    );
+    print_summary(&outcome.metrics, &outcome.outputs);
+    if let Some(rrd) = rrd.filter(|_| !args.no_viewer) {
+        match which("rerun") {
+            Some(viewer) => {
+                println!("opening the viewer: {} {}", viewer.display(), rrd.display());
+                if let Err(e) = std::process::Command::new(viewer).arg(&rrd).spawn() {
+                    eprintln!("could not start the viewer: {e}");
+                }
+            }
+            None => println!(
+                "view it with `rerun {}` (pip install rerun-sdk for the viewer)",
+                rrd.display()
+            ),
+        }
+    }
     Ok(())
+}
+
+/// The first `name` on PATH.
+fn which(name: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
+    })
 }

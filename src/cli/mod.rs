@@ -2,11 +2,14 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
+mod bench_pipeline;
 mod dataset;
 mod demo;
 mod enhance;
+mod live;
 mod markers;
 mod record;
+mod replay;
 mod retime;
 mod solve;
 mod synth;
@@ -30,7 +33,7 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Synthetic session of the built-in actor through everything that exists so far.
+    /// A synthetic session of the built-in actor through the whole pipeline.
     Demo(demo::DemoArgs),
     /// Inspect, cache or synthesize datasets of face shapes.
     #[command(subcommand)]
@@ -42,6 +45,8 @@ enum Command {
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Run the pipeline on a recorded session: bundles, head pose, meshes, exports.
+    Replay(replay::ReplayArgs),
     /// Reconstruct the dense face of every frame of a bundles CSV.
     Solve(solve::SolveArgs),
     /// Release-mode benchmarks (median of several runs).
@@ -51,6 +56,8 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Record the live cameras (and the sync box's timecode) to a session folder.
     Record(record::RecordArgs),
+    /// Run the pipeline on the live cameras (or test cameras): the outputs of replay.
+    Live(live::LiveArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -77,11 +84,13 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dataset(c) => dataset::run(c),
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
+        Command::Replay(a) => replay::run(a),
         Command::Retime(a) => retime::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
         Command::Record(a) => record::run(a),
+        Command::Live(a) => live::run(a),
     }
 }
 

@@ -2,8 +2,7 @@
 //! folder.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -40,23 +39,6 @@ pub struct RecordArgs {
     pub simulate_write_delay_ms: u64,
 }
 
-/// Ctrl-C handling: the first press asks to stop cleanly, the second exits at once.
-pub fn install_stop_handler() -> anyhow::Result<Arc<AtomicBool>> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let presses = Arc::new(AtomicUsize::new(0));
-    let flag = stop.clone();
-    ctrlc::set_handler(move || {
-        if presses.fetch_add(1, Ordering::SeqCst) == 0 {
-            eprintln!("stopping: finishing the frames in flight (Ctrl-C again to quit at once)");
-            flag.store(true, Ordering::SeqCst);
-        } else {
-            std::process::exit(130);
-        }
-    })
-    .context("installing the Ctrl-C handler")?;
-    Ok(stop)
-}
-
 /// Loads the live config and applies the command-line overrides shared by `record` and
 /// `live`.
 pub fn load_config(path: &Path, sync_port: Option<&str>) -> anyhow::Result<LiveConfig> {
@@ -79,7 +61,7 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
         anyhow::ensure!(q > 0, "--queue-frames must be at least 1");
         config.record.queue_frames = q;
     }
-    let stop = install_stop_handler()?;
+    let stop = super::replay::stop_flag();
     let mut source: LiveSource = config
         .open_source(args.test_source.as_deref())
         .context("opening the live source")?;

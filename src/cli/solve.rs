@@ -260,13 +260,25 @@ fn lgi_index(
     args: &SolveArgs,
 ) -> anyhow::Result<Arc<LgiIndex>> {
     let cache = (!args.no_index_cache && !args.dataset.no_cache).then(|| {
-        let dir = args
-            .dataset
+        args.dataset
             .cache_dir
             .clone()
-            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir);
-        dir.join(format!("lgi-{:016x}.bin", index_key(ds, layout, params)))
+            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
     });
+    lgi_index_cached(ds, layout, params, cache)
+}
+
+/// The LGI index of `ds` for `layout`: from the cache folder `cache_dir` (when given)
+/// when one was built with the same dataset, layout and parameters, else built (and
+/// cached there).
+pub fn lgi_index_cached(
+    ds: &Dataset,
+    layout: &MarkerLayout,
+    params: &LgiParams,
+    cache_dir: Option<PathBuf>,
+) -> anyhow::Result<Arc<LgiIndex>> {
+    let cache =
+        cache_dir.map(|dir| dir.join(format!("lgi-{:016x}.bin", index_key(ds, layout, params))));
     if let Some(path) = &cache
         && let Ok(bytes) = std::fs::read(path)
     {

@@ -1,7 +1,11 @@
-//! Marker detection in single images (tracking and labeling build on it).
+//! Marker detection in single images, and tracking and labeling of the detections of a
+//! stereo pair frame after frame.
 //!
-//! Depends on [`crate::capture`] (images) and [`crate::camera`].
+//! Depends on [`crate::capture`] (images), [`crate::camera`], [`crate::stereo`],
+//! [`crate::align`] and [`crate::dataset`] (marker layouts).
 
 pub mod detect;
+pub mod label;
 
 pub use detect::{DetectParams, Detection, detect_markers};
+pub use label::{LabelError, LabelParams, LabelStats, LabeledFrame, LabeledMarker, Labeler};

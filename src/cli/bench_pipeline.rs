@@ -1,0 +1,271 @@
+//! `helmcap bench pipeline`: replay throughput, live-paced latency and a memory soak of
+//! the streaming pipeline on a synthetic 1280×1024, 60 fps session of the built-in actor
+//! (detection → labeling → stabilization → LGI, no enhancement; CSV and metrics sinks).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use anyhow::Context;
+use helmcap::capture::{FrameSource, Replay, ReplayParams};
+use helmcap::lgi::LgiParams;
+use helmcap::pipeline::sources::{LoopSource, PacedSource};
+use helmcap::pipeline::{FrameResult, Metrics, PipelineConfig, SessionMeta, Sink, SinkError};
+use helmcap::sink::{CsvSink, MetricsSink};
+use helmcap::solve::Solver;
+use helmcap::synth::{
+    AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
+};
+
+use super::DatasetArgs;
+use super::replay::load_layout;
+
+/// Arguments of `helmcap bench pipeline`.
+#[derive(Debug, clap::Args)]
+pub struct PipelineBenchArgs {
+    /// Frames of the synthetic session.
+    #[arg(long, default_value_t = 240)]
+    pub frames: usize,
+    /// Timed runs of the throughput and latency measurements (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub runs: usize,
+    /// Frames of the memory soak (the session's first frames looped from memory; 0: no
+    /// soak).
+    #[arg(long, default_value_t = 10_000)]
+    pub soak_frames: usize,
+    /// Frames kept in memory and looped by the soak.
+    #[arg(long, default_value_t = 20)]
+    pub soak_loop: usize,
+    /// Working folder (default: a temporary folder, removed at the end).
+    #[arg(long, value_name = "DIR")]
+    pub work: Option<PathBuf>,
+}
+
+/// Samples the process's resident memory every `every` frames.
+struct RssSink {
+    every: usize,
+    samples: Arc<std::sync::Mutex<Vec<(usize, u64)>>>,
+    seen: usize,
+}
+
+/// Resident set size of this process, kB (`VmRSS` of /proc/self/status).
+fn rss_kb() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    text.lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
+impl Sink for RssSink {
+    fn name(&self) -> &str {
+        "rss"
+    }
+    fn begin(&mut self, _session: &SessionMeta) -> Result<(), SinkError> {
+        Ok(())
+    }
+    fn write(&mut self, _frame: &FrameResult) -> Result<(), SinkError> {
+        if self.seen.is_multiple_of(self.every)
+            && let (Some(kb), Ok(mut s)) = (rss_kb(), self.samples.lock())
+        {
+            s.push((self.seen, kb));
+        }
+        self.seen += 1;
+        Ok(())
+    }
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        Ok(())
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// The pipeline configuration of the built-in actor with LGI.
+fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfig> {
+    let layout = load_layout("builtin", None)?;
+    let ds = DatasetArgs {
+        dataset: "builtin".into(),
+        no_cache: false,
+        cache_dir: None,
+    }
+    .load()?;
+    let neutral: Vec<_> = layout
+        .markers
+        .iter()
+        .map(|m| ds.neutral.positions[m.vertex as usize])
+        .collect();
+    let params = LgiParams::default();
+    let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
+    let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);
+    config.solver = Some(Solver::lgi(index, &params)?);
+    config.neutral = Some(Arc::new(ds.neutral.clone()));
+    config.face_vertices = Some(ds.face_vertices.clone());
+    Ok(config)
+}
+
+fn run_once(
+    source: Box<dyn FrameSource>,
+    rig: &helmcap::camera::StereoRig,
+    out: &Path,
+    extra: Vec<Box<dyn Sink>>,
+) -> anyhow::Result<Metrics> {
+    let config = actor_config(rig.clone())?;
+    let mut sinks: Vec<Box<dyn Sink>> = vec![
+        Box::new(CsvSink::new(out)),
+        Box::new(MetricsSink::new(&out.join("metrics.json"))),
+    ];
+    sinks.extend(extra);
+    Ok(helmcap::pipeline::run(
+        source,
+        config,
+        sinks,
+        Arc::new(AtomicBool::new(false)),
+    )?)
+}
+
+pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
+    let (work, temporary) = match &args.work {
+        Some(w) => (w.clone(), false),
+        None => (
+            std::env::temp_dir().join(format!("helmcap-bench-pipeline-{}", std::process::id())),
+            true,
+        ),
+    };
+    let session = work.join("session");
+    let rig = default_rig().context("the built-in rig")?;
+    if !session.join("frames.csv").is_file() {
+        let layout = load_layout("builtin", None)?;
+        let actor = helmcap::dataset::actor::Actor::new(&Default::default())?;
+        let performer = Performer::Actor(Box::new(actor));
+        let synth = SynthParams {
+            slip_mm: 1.5,
+            slip_deg: 1.0,
+            ..SynthParams::default()
+        };
+        let names = performer.expression_names();
+        let weights =
+            animation::random_curves(&names, args.frames, synth.fps, &AnimationParams::default());
+        let t = Instant::now();
+        render_session(
+            &performer,
+            &layout,
+            &rig,
+            &weights,
+            &synth,
+            &session,
+            false,
+            &|| {},
+        )?;
+        println!(
+            "rendered {} frames (1280×1024, 60 fps) in {:.1} s",
+            args.frames,
+            t.elapsed().as_secs_f64()
+        );
+    }
+    let open = || -> anyhow::Result<Box<dyn FrameSource>> {
+        Ok(Box::new(Replay::open(&session, ReplayParams::default())?))
+    };
+    let out = work.join("out");
+    let runs = args.runs.max(1);
+
+    // Throughput: as fast as the pipeline goes (replay: backpressure, no drops).
+    let mut fps = Vec::new();
+    let mut stage_p50: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
+    for _ in 0..runs {
+        let m = run_once(open()?, &rig, &out, Vec::new())?;
+        fps.push(m.throughput_fps);
+        for (k, s) in &m.latency_ms {
+            stage_p50.entry(k.clone()).or_default().push(s.mean);
+        }
+    }
+    let source_fps = 60.0;
+    let thr = median(fps.clone());
+    println!(
+        "replay throughput, median of {runs}: {thr:.1} frames/s = {:.2}× real time (runs: {})",
+        thr / source_fps,
+        fps.iter()
+            .map(|f| format!("{f:.1}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let per_stage: Vec<String> = stage_p50
+        .into_iter()
+        .map(|(k, v)| format!("{k} {:.2}", median(v)))
+        .collect();
+    println!("  mean ms per frame and stage: {}", per_stage.join(", "));
+
+    // Latency: frames delivered on a 60 fps clock, dropped when the pipeline is full.
+    let (mut p50, mut p99, mut dropped) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..runs {
+        let m = run_once(
+            Box::new(PacedSource::new(open()?, source_fps)),
+            &rig,
+            &out,
+            Vec::new(),
+        )?;
+        let e = m.latency_ms.get("end_to_end").copied();
+        p50.push(e.map_or(f64::NAN, |s| s.p50));
+        p99.push(e.map_or(f64::NAN, |s| s.p99));
+        dropped.push(m.frames_dropped as f64);
+    }
+    println!(
+        "live-paced 60 fps end-to-end latency, median of {runs}: p50 {:.1} ms, p99 {:.1} ms (goal p99 < 33.3 ms); frames dropped {}",
+        median(p50),
+        median(p99),
+        median(dropped)
+    );
+
+    // Memory soak.
+    if args.soak_frames > 0 {
+        let samples = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let rss = RssSink {
+            every: (args.soak_frames / 20).max(1),
+            samples: samples.clone(),
+            seen: 0,
+        };
+        let limited = Replay::open(&session, ReplayParams::default())?;
+        let mut frames = Vec::new();
+        let mut limited = limited;
+        while frames.len() < args.soak_loop {
+            match limited.next_frame() {
+                Some(f) => frames.push(f?),
+                None => break,
+            }
+        }
+        let looped =
+            LoopSource::from_frames(frames, source_fps, args.soak_frames, Some(rig.clone()));
+        let t = Instant::now();
+        let m = run_once(Box::new(looped), &rig, &out, vec![Box::new(rss)])?;
+        let s = samples.lock().map(|s| s.clone()).unwrap_or_default();
+        let line: Vec<String> = s
+            .iter()
+            .map(|(f, kb)| format!("{f}:{:.0}", *kb as f64 / 1024.0))
+            .collect();
+        let after_warmup: Vec<u64> = s.iter().skip(s.len() / 5).map(|x| x.1).collect();
+        let (lo, hi) = (
+            after_warmup.iter().min().copied().unwrap_or(0),
+            after_warmup.iter().max().copied().unwrap_or(0),
+        );
+        println!(
+            "soak: {} frames in {:.1} s ({:.1} frames/s); RSS MB by frame: {}",
+            m.frames_out,
+            t.elapsed().as_secs_f64(),
+            m.throughput_fps,
+            line.join(" ")
+        );
+        println!(
+            "  after warm-up (from frame {}): RSS {:.1}–{:.1} MB, spread {:.1} MB",
+            s.get(s.len() / 5).map_or(0, |x| x.0),
+            lo as f64 / 1024.0,
+            hi as f64 / 1024.0,
+            (hi - lo) as f64 / 1024.0
+        );
+    }
+    if temporary {
+        let _ = std::fs::remove_dir_all(&work);
+    }
+    Ok(())
+}

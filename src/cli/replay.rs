@@ -1,0 +1,418 @@
+//! `helmcap replay SESSION`: a recorded session through the whole pipeline (detection,
+//! labeling, triangulation, stabilization, dense solve, optional enhancement) into an
+//! output folder, with a progress bar and a summary.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
+
+use anyhow::{Context, bail};
+use helmcap::capture::{FrameSource, Replay, ReplayParams};
+use helmcap::dataset::{Dataset, MarkerLayout};
+use helmcap::lgi::LgiParams;
+use helmcap::pipeline::{
+    FrameResult, GroundTruth, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
+};
+use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
+use helmcap::solve::Solver;
+use nalgebra::Point3;
+
+use super::{DatasetArgs, builtin_params};
+
+/// An export format besides the CSV files and metrics (which are always written).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Export {
+    /// One OBJ per frame: `mesh/frame_NNNNNN.obj` (neutral topology and UVs, mm).
+    Obj,
+    /// One binary PLY per frame: `mesh/frame_NNNNNN.ply`.
+    Ply,
+    /// One USD file with time-sampled points: `mesh.usda`.
+    Usd,
+    /// The labeled bundles as C3D: `bundles.c3d`.
+    C3d,
+}
+
+/// Arguments of `helmcap replay`.
+#[derive(Debug, clap::Args)]
+pub struct ReplayArgs {
+    /// Recording session folder (session.toml, frames.csv, cam0/, cam1/).
+    pub session: PathBuf,
+    /// Calibration YAML (default: the one session.toml names).
+    #[arg(long, value_name = "YAML")]
+    pub calib: Option<PathBuf>,
+    /// Dataset manifest, or `builtin[:SEED]` for the built-in actor.
+    #[arg(long, short = 'd', default_value = "builtin")]
+    pub dataset: String,
+    /// Marker layout CSV (default for the built-in actor: its shipped layout).
+    #[arg(long, short = 'k', value_name = "CSV")]
+    pub markers: Option<PathBuf>,
+    /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json, exports).
+    #[arg(long, short, default_value = "out/replay")]
+    pub out: PathBuf,
+    /// Also save a rerun recording (.rrd) of the take.
+    #[arg(long, value_name = "FILE")]
+    pub rrd: Option<PathBuf>,
+    /// Export format (repeatable): obj, ply, usd, c3d.
+    #[arg(long, value_enum)]
+    pub export: Vec<Export>,
+    /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
+    #[arg(long)]
+    pub enhance: bool,
+    /// Frames to process: `A..B` (B excluded), `A..=B`, `A..` or `..B`, frame numbers of
+    /// frames.csv; for splitting long takes.
+    #[arg(long, value_name = "RANGE")]
+    pub frames: Option<String>,
+    /// Stop after labeling and stabilization (no dense solve, no meshes).
+    #[arg(long)]
+    pub no_solve: bool,
+    /// Skip unreadable frames (counted as gaps) instead of stopping at the first one.
+    #[arg(long)]
+    pub skip_bad_frames: bool,
+    /// Frames each stage channel holds.
+    #[arg(long, default_value_t = 4)]
+    pub queue: usize,
+    /// Do not read or write the dataset and LGI index caches.
+    #[arg(long)]
+    pub no_cache: bool,
+    /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
+    #[arg(long, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Parses `A..B`, `A..=B`, `A..`, `..B` into an inclusive range.
+pub fn parse_frame_range(s: &str) -> anyhow::Result<std::ops::RangeInclusive<usize>> {
+    let bad = || anyhow::anyhow!("--frames {s:?}: expected A..B, A..=B, A.. or ..B");
+    let (a, b) = s.split_once("..").ok_or_else(bad)?;
+    let start = if a.is_empty() {
+        0
+    } else {
+        a.trim().parse().map_err(|_| bad())?
+    };
+    let end = if let Some(b) = b.strip_prefix('=') {
+        b.trim().parse::<usize>().map_err(|_| bad())?
+    } else if b.is_empty() {
+        usize::MAX
+    } else {
+        b.trim()
+            .parse::<usize>()
+            .map_err(|_| bad())?
+            .checked_sub(1)
+            .ok_or_else(bad)?
+    };
+    if end < start {
+        bail!("--frames {s:?} is empty");
+    }
+    Ok(start..=end)
+}
+
+/// The layout for `dataset` (a path, or the built-in actor's shipped layout).
+pub fn load_layout(dataset: &str, markers: Option<&Path>) -> anyhow::Result<MarkerLayout> {
+    match markers {
+        Some(p) => {
+            MarkerLayout::read_csv(p).with_context(|| format!("reading markers {}", p.display()))
+        }
+        None if builtin_params(dataset)?.is_some() => Ok(MarkerLayout::parse_csv(
+            include_str!("../../configs/markers/builtin-actor.csv"),
+            "builtin-actor.csv",
+        )?),
+        None => bail!("--markers is required with a dataset manifest"),
+    }
+}
+
+/// Shows progress on the terminal (a sink like the others).
+struct ProgressSink {
+    bar: indicatif::ProgressBar,
+}
+
+impl Sink for ProgressSink {
+    fn name(&self) -> &str {
+        "progress"
+    }
+
+    fn begin(&mut self, session: &SessionMeta) -> Result<(), SinkError> {
+        if let Some(n) = session.frame_count {
+            self.bar.set_length(n as u64);
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        self.bar.inc(1);
+        if f.index.is_multiple_of(10) {
+            let labeled = f.count(helmcap::pipeline::BundleStatus::Observed);
+            self.bar
+                .set_message(format!("frame {} · {labeled} markers", f.index));
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        self.bar.finish_and_clear();
+        Ok(())
+    }
+}
+
+/// Whether this binary can write rerun recordings (`--rrd`).
+pub fn rerun_available() -> bool {
+    false
+}
+
+/// The rerun sink for `--rrd`.
+fn rerun_sink(path: &Path) -> anyhow::Result<Box<dyn Sink>> {
+    bail!(
+        "--rrd {}: rerun support not built into this binary",
+        path.display()
+    )
+}
+
+/// Installs the Ctrl-C handler once per process; returns the stop flag it sets.
+pub fn stop_flag() -> Arc<AtomicBool> {
+    static FLAG: OnceLock<Arc<AtomicBool>> = OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let f = flag.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if f.swap(true, Ordering::SeqCst) {
+                // Second Ctrl-C: the user really wants out.
+                std::process::exit(130);
+            }
+            eprintln!("\nstopping after the frames in flight (Ctrl-C again to abort)");
+        }) {
+            tracing::warn!("no Ctrl-C handler: {e}");
+        }
+        flag
+    })
+    .clone()
+}
+
+/// Everything a replay run produced, for summaries.
+pub struct ReplayOutcome {
+    /// The take's metrics.
+    pub metrics: Metrics,
+    /// Files written.
+    pub outputs: Vec<PathBuf>,
+}
+
+/// Runs the replay described by `args`; the result holds the metrics (also in
+/// `metrics.json`).
+pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
+    let mut source = Replay::open(
+        &args.session,
+        ReplayParams {
+            skip_bad_frames: args.skip_bad_frames,
+            calibration: args.calib.clone(),
+        },
+    )
+    .with_context(|| format!("opening session {}", args.session.display()))?;
+    if let Some(r) = &args.frames {
+        let range = parse_frame_range(r)?;
+        let kept = source.select_frames(range.clone());
+        if kept == 0 {
+            bail!(
+                "--frames {r}: the session has no frame in {}..={}",
+                range.start(),
+                range.end()
+            );
+        }
+    }
+    let rig = source
+        .rig()
+        .cloned()
+        .context("the session names no calibration; pass --calib")?;
+    let info = source.info().clone();
+    let layout = load_layout(&args.dataset, args.markers.as_deref())?;
+    let dataset_args = DatasetArgs {
+        dataset: args.dataset.clone(),
+        no_cache: args.no_cache,
+        cache_dir: args.cache_dir.clone(),
+    };
+    let ds: Dataset = dataset_args.load()?;
+    layout
+        .validate_for(&ds)
+        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
+    let neutral_markers: Vec<Point3<f64>> = layout
+        .markers
+        .iter()
+        .map(|m| ds.neutral.positions[m.vertex as usize])
+        .collect();
+    let layout = Arc::new(layout);
+    let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
+    config.channel_capacity = args.queue;
+    config.name = args
+        .session
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "take".into());
+    config.timecode_rate = info.timecode_rate;
+    config.frame_count = Some(info.frames.len());
+    config.first_frame = info.frames.first().map_or(0, |f| f.0);
+    if !args.no_solve {
+        let params = LgiParams::default();
+        let index = super::solve::lgi_index_cached(
+            &ds,
+            &layout,
+            &params,
+            (!args.no_cache).then(|| {
+                args.cache_dir
+                    .clone()
+                    .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
+            }),
+        )?;
+        config.solver = Some(Solver::lgi(index, &params)?);
+        config.neutral = Some(Arc::new(ds.neutral.clone()));
+        config.face_vertices = Some(ds.face_vertices.clone());
+        if args.enhance {
+            let params = super::enhance::read_params(None)?;
+            let (_, enhancer) = super::enhance::build_enhancer(&args.dataset, &params)?;
+            config.enhancer = Some(Arc::new(enhancer));
+        }
+    } else if !args.export.iter().all(|e| *e == Export::C3d) || args.enhance {
+        bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
+    }
+    config.ground_truth = GroundTruth::load(&args.session, &layout)
+        .with_context(|| format!("reading ground truth of {}", args.session.display()))?
+        .map(Arc::new);
+
+    let out = &args.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut outputs = vec![
+        out.join("bundles.csv"),
+        out.join("head_pose.csv"),
+        out.join("tracks.csv"),
+        out.join("metrics.json"),
+    ];
+    let mut sinks: Vec<Box<dyn Sink>> = vec![
+        Box::new(CsvSink::new(out)),
+        Box::new(MetricsSink::new(&out.join("metrics.json"))),
+    ];
+    let mut exports = args.export.clone();
+    exports.dedup();
+    for e in exports {
+        match e {
+            Export::Obj => {
+                sinks.push(Box::new(MeshSequenceSink::new(
+                    &out.join("mesh"),
+                    MeshFormat::Obj,
+                )));
+                outputs.push(out.join("mesh/frame_NNNNNN.obj"));
+            }
+            Export::Ply => {
+                sinks.push(Box::new(MeshSequenceSink::new(
+                    &out.join("mesh"),
+                    MeshFormat::Ply,
+                )));
+                outputs.push(out.join("mesh/frame_NNNNNN.ply"));
+            }
+            Export::Usd => {
+                sinks.push(Box::new(UsdSink::new(&out.join("mesh.usda"))));
+                outputs.push(out.join("mesh.usda"));
+            }
+            Export::C3d => {
+                sinks.push(Box::new(C3dSink::new(&out.join("bundles.c3d"))));
+                outputs.push(out.join("bundles.c3d"));
+            }
+        }
+    }
+    if let Some(rrd) = &args.rrd {
+        sinks.push(rerun_sink(rrd)?);
+        outputs.push(rrd.clone());
+    }
+    if !args.quiet {
+        let bar = indicatif::ProgressBar::new(info.frames.len() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "replay [{bar:30}] {pos}/{len} frames {per_sec} {msg}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        sinks.push(Box::new(ProgressSink { bar }));
+    }
+    let stop = stop_flag();
+    let source: Box<dyn FrameSource> = Box::new(source);
+    let result = helmcap::pipeline::run(source, config, sinks, stop);
+    match result {
+        Ok(metrics) => Ok(ReplayOutcome { metrics, outputs }),
+        Err(e) => Err(anyhow::Error::new(e).context(format!(
+            "replay of {} stopped; outputs so far are in {}",
+            args.session.display(),
+            out.display()
+        ))),
+    }
+}
+
+/// Prints the end-of-take summary.
+pub fn print_summary(m: &Metrics, outputs: &[PathBuf]) {
+    let e2e = m.latency_ms.get("end_to_end");
+    println!(
+        "frames: {} in, {} out, {} dropped, {} gaps (source {}, pose held {}, no pose {}, no mesh {})",
+        m.frames_in,
+        m.frames_out,
+        m.frames_dropped,
+        m.gaps.source as u64 + m.gaps.pose_held + m.gaps.pose_missing + m.gaps.mesh_missing,
+        m.gaps.source,
+        m.gaps.pose_held,
+        m.gaps.pose_missing,
+        m.gaps.mesh_missing
+    );
+    println!(
+        "markers: {:.1} % labeled ({} observed, {} gap-filled, {} dropped marker-frames; {} reacquired)",
+        m.labeling.labeled_fraction * 100.0,
+        m.labeling.observed,
+        m.labeling.gap_filled,
+        m.labeling.dropped,
+        m.labeling.reacquired
+    );
+    let realtime = if m.source_fps > 0.0 {
+        format!(
+            " ({:.2}× real time at {} fps)",
+            m.throughput_fps / m.source_fps,
+            m.source_fps
+        )
+    } else {
+        String::new()
+    };
+    println!(
+        "throughput: {:.1} frames/s{realtime}; latency end to end p50 {:.1} ms, p99 {:.1} ms",
+        m.throughput_fps,
+        e2e.map_or(f64::NAN, |s| s.p50),
+        e2e.map_or(f64::NAN, |s| s.p99)
+    );
+    let stages: Vec<String> = m
+        .latency_ms
+        .iter()
+        .filter(|(k, _)| *k != "end_to_end")
+        .map(|(k, s)| format!("{k} {:.1}/{:.1}", s.p50, s.p99))
+        .collect();
+    println!("per stage p50/p99 ms: {}", stages.join(", "));
+    if let Some(tc) = &m.timecode {
+        println!("timecode: {} – {}", tc.first, tc.last);
+    }
+    if let Some(a) = &m.accuracy {
+        let mesh = if a.mesh_frames > 0 {
+            format!(
+                "; mesh error RMS {:.3} mm, mean {:.3} mm, max {:.2} mm over {} frames",
+                a.mesh_rms_mm, a.mesh_mean_mm, a.mesh_max_mm, a.mesh_frames
+            )
+        } else {
+            String::new()
+        };
+        println!(
+            "accuracy vs ground truth: bundles RMS {:.3} mm over {} frames{mesh}",
+            a.bundle_rms_mm, a.bundle_frames
+        );
+    }
+    let files: Vec<String> = outputs.iter().map(|p| p.display().to_string()).collect();
+    println!("wrote {}", files.join(", "));
+}
+
+pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
+    let outcome = replay(&args)?;
+    print_summary(&outcome.metrics, &outcome.outputs);
+    if let Some(reason) = &outcome.metrics.stopped {
+        eprintln!("stopped early: {reason}");
+    }
+    Ok(())
+}

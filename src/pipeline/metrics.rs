@@ -1,0 +1,391 @@
+//! Take metrics: frame counts, throughput, latency per stage and end to end, labeling and
+//! gap counts, the timecode range and accuracy against ground truth. Written as
+//! `metrics.json` (DESIGN.md §4 "Pipeline outputs").
+//!
+//! Latencies go into fixed log-spaced histograms (2 % wide bins from 1 µs to 100 s), so a
+//! take of any length costs the same memory; percentiles are exact to the bin width,
+//! means and maxima are exact.
+
+use std::collections::BTreeMap;
+
+use super::frame::{BundleStatus, FrameResult, Stage};
+use crate::align::PoseSource;
+use crate::timecode::Timecode;
+
+/// Ratio between consecutive histogram bin edges.
+const BIN_RATIO: f64 = 1.02;
+/// Lower edge of the first bin, ms.
+const BIN_MIN_MS: f64 = 1e-3;
+/// Number of bins (1 µs · 1.02^n reaches 100 s at n ≈ 930).
+const BIN_COUNT: usize = 940;
+
+/// A latency distribution in constant memory (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LatencyHistogram {
+    bins: Vec<u64>,
+    count: u64,
+    sum_ms: f64,
+    max_ms: f64,
+}
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        Self {
+            bins: vec![0; BIN_COUNT],
+            count: 0,
+            sum_ms: 0.0,
+            max_ms: 0.0,
+        }
+    }
+}
+
+impl LatencyHistogram {
+    /// Adds one sample, ms (non-finite or negative samples are ignored).
+    pub fn add(&mut self, ms: f64) {
+        if !(ms.is_finite() && ms >= 0.0) {
+            return;
+        }
+        let bin = if ms <= BIN_MIN_MS {
+            0
+        } else {
+            ((ms / BIN_MIN_MS).ln() / BIN_RATIO.ln()) as usize
+        };
+        self.bins[bin.min(BIN_COUNT - 1)] += 1;
+        self.count += 1;
+        self.sum_ms += ms;
+        self.max_ms = self.max_ms.max(ms);
+    }
+
+    /// Number of samples.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// The `q` quantile (0..1), ms: the geometric centre of the bin holding it.
+    pub fn quantile(&self, q: f64) -> f64 {
+        if self.count == 0 {
+            return f64::NAN;
+        }
+        let rank = ((q.clamp(0.0, 1.0) * self.count as f64).ceil() as u64).max(1);
+        let mut seen = 0;
+        for (i, &n) in self.bins.iter().enumerate() {
+            seen += n;
+            if seen >= rank {
+                let centre = BIN_MIN_MS * BIN_RATIO.powf(i as f64 + 0.5);
+                return centre.min(self.max_ms);
+            }
+        }
+        self.max_ms
+    }
+
+    /// Mean, p50, p99 and max.
+    pub fn stats(&self) -> LatencyStats {
+        LatencyStats {
+            mean: if self.count == 0 {
+                f64::NAN
+            } else {
+                self.sum_ms / self.count as f64
+            },
+            p50: self.quantile(0.5),
+            p99: self.quantile(0.99),
+            max: if self.count == 0 {
+                f64::NAN
+            } else {
+                self.max_ms
+            },
+            count: self.count,
+        }
+    }
+}
+
+/// Summary of one latency distribution, ms.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LatencyStats {
+    /// Mean.
+    pub mean: f64,
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+    /// Largest.
+    pub max: f64,
+    /// Samples.
+    pub count: u64,
+}
+
+/// Marker labeling over the take.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct LabelingMetrics {
+    /// Markers in the layout.
+    pub markers: usize,
+    /// Marker-frames observed (labeled and triangulated).
+    pub observed: u64,
+    /// Marker-frames filled from the dense solve.
+    pub gap_filled: u64,
+    /// Marker-frames dropped (implausible, or no head pose).
+    pub dropped: u64,
+    /// Marker-frames with nothing.
+    pub missing: u64,
+    /// observed / (frames × markers).
+    pub labeled_fraction: f64,
+    /// Markers labeled again after a gap.
+    pub reacquired: u64,
+    /// Candidate labels the labeler rejected.
+    pub rejected: u64,
+    /// Frames the labeler spent (re)acquiring the face.
+    pub acquiring_frames: u64,
+}
+
+/// Frames with something missing.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct GapMetrics {
+    /// Frames the source skipped (unreadable frames of a replay, lost camera frames).
+    pub source: usize,
+    /// Frames that held the previous head pose (too few stabilizing markers).
+    pub pose_held: u64,
+    /// Frames without a head pose.
+    pub pose_missing: u64,
+    /// Frames without a dense mesh although the pipeline solves meshes.
+    pub mesh_missing: u64,
+}
+
+/// First and last timecode of the take.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TimecodeRange {
+    /// Rate (`30`, `29.97df`, ...).
+    pub rate: String,
+    /// First frame's timecode with its rate (`01:00:00:00.0@30`).
+    pub first: String,
+    /// Last frame's timecode with its rate.
+    pub last: String,
+}
+
+/// Accuracy against the session's ground truth.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct AccuracyMetrics {
+    /// Frames with ground-truth bundles compared.
+    pub bundle_frames: u64,
+    /// RMS over all observed bundles of the distance to the true marker position in the
+    /// head frame, mm.
+    pub bundle_rms_mm: f64,
+    /// Frames with a ground-truth mesh compared.
+    pub mesh_frames: u64,
+    /// RMS over frames and face vertices of the distance to the true surface vertex, mm.
+    pub mesh_rms_mm: f64,
+    /// Mean of the same distances, mm.
+    pub mesh_mean_mm: f64,
+    /// Largest face-vertex distance in any frame, mm.
+    pub mesh_max_mm: f64,
+}
+
+/// Everything `metrics.json` holds.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct Metrics {
+    /// Frames taken from the source (including those dropped at the source).
+    pub frames_in: u64,
+    /// Frames that went through every stage to the sinks.
+    pub frames_out: u64,
+    /// Frames a live source dropped because the pipeline was full.
+    pub frames_dropped: u64,
+    /// frames_out / wall time, frames per second.
+    pub throughput_fps: f64,
+    /// Wall time of the take, seconds.
+    pub wall_secs: f64,
+    /// The source's frame rate, for comparison with the throughput.
+    pub source_fps: f64,
+    /// Per stage (by name) and `end_to_end`: mean, p50, p99, max, count (ms).
+    pub latency_ms: BTreeMap<String, LatencyStats>,
+    /// Labeling counts.
+    pub labeling: LabelingMetrics,
+    /// Gap counts.
+    pub gaps: GapMetrics,
+    /// Timecode of the first and last frame out, when the source has timecode.
+    pub timecode: Option<TimecodeRange>,
+    /// First and last frame index out.
+    pub frame_range: Option<(usize, usize)>,
+    /// Accuracy against ground truth, when the session has it.
+    pub accuracy: Option<AccuracyMetrics>,
+    /// Why the take stopped early (a stage error or an interruption), if it did.
+    pub stopped: Option<String>,
+}
+
+/// Accumulates [`Metrics`] frame by frame (in the sink thread).
+#[derive(Debug, Clone, Default)]
+pub struct MetricsCollector {
+    stages: BTreeMap<Stage, LatencyHistogram>,
+    end_to_end: LatencyHistogram,
+    metrics: Metrics,
+    first_tc: Option<Timecode>,
+    last_tc: Option<Timecode>,
+    bundle_sq_sum: f64,
+    bundle_count: u64,
+    mesh_sq_sum: f64,
+    mesh_sum: f64,
+    mesh_count: u64,
+    solves_meshes: bool,
+}
+
+impl MetricsCollector {
+    /// A collector for a take of `markers` layout markers; `solves_meshes` says whether a
+    /// frame without a mesh is a gap.
+    pub fn new(markers: usize, source_fps: f64, solves_meshes: bool) -> Self {
+        let mut c = Self {
+            solves_meshes,
+            ..Self::default()
+        };
+        c.metrics.labeling.markers = markers;
+        c.metrics.source_fps = source_fps;
+        c
+    }
+
+    /// Counts one frame as taken from the source.
+    pub fn frame_in(&mut self) {
+        self.metrics.frames_in += 1;
+    }
+
+    /// Sets the source counts (frames taken, dropped, skipped).
+    pub fn set_source_counts(&mut self, frames_in: u64, dropped: u64, gaps: usize) {
+        self.metrics.frames_in = frames_in;
+        self.metrics.frames_dropped = dropped;
+        self.metrics.gaps.source = gaps;
+    }
+
+    /// Adds a finished frame; `end_to_end_ms` from the source to the end of the sinks.
+    /// `face_vertices` selects the vertices the mesh error statistics cover.
+    pub fn frame_out(
+        &mut self,
+        frame: &FrameResult,
+        end_to_end_ms: f64,
+        face_vertices: Option<&std::ops::RangeInclusive<u32>>,
+    ) {
+        let m = &mut self.metrics;
+        m.frames_out += 1;
+        for s in Stage::ALL {
+            let ms = frame.timings.get(s);
+            if ms.is_finite() {
+                self.stages.entry(s).or_default().add(ms);
+            }
+        }
+        self.end_to_end.add(end_to_end_ms);
+        for r in &frame.markers {
+            match r.status {
+                BundleStatus::Observed => m.labeling.observed += 1,
+                BundleStatus::GapFilled => m.labeling.gap_filled += 1,
+                BundleStatus::Dropped => m.labeling.dropped += 1,
+                BundleStatus::Missing => m.labeling.missing += 1,
+            }
+        }
+        m.labeling.reacquired += frame.label_counts.reacquired as u64;
+        m.labeling.rejected += frame.label_counts.rejected as u64;
+        m.labeling.acquiring_frames += u64::from(frame.label_counts.acquiring);
+        match frame.pose_source {
+            PoseSource::Estimated => {}
+            PoseSource::Held => m.gaps.pose_held += 1,
+            PoseSource::Missing => m.gaps.pose_missing += 1,
+        }
+        if self.solves_meshes && frame.mesh.is_none() {
+            m.gaps.mesh_missing += 1;
+        }
+        if let Some(tc) = frame.timecode {
+            self.first_tc.get_or_insert(tc);
+            self.last_tc = Some(tc);
+        }
+        m.frame_range = Some(match m.frame_range {
+            None => (frame.index, frame.index),
+            Some((a, _)) => (a, frame.index),
+        });
+        if let Some(rms) = frame.bundle_error_rms_mm {
+            let observed = frame.count(BundleStatus::Observed) as u64;
+            self.bundle_sq_sum += rms * rms * observed as f64;
+            self.bundle_count += observed;
+            m.accuracy
+                .get_or_insert_with(Default::default)
+                .bundle_frames += 1;
+        }
+        if let Some(err) = &frame.mesh_error_mm {
+            let acc = m.accuracy.get_or_insert_with(Default::default);
+            acc.mesh_frames += 1;
+            for (v, &e) in err.iter().enumerate() {
+                if face_vertices.is_none_or(|r| r.contains(&(v as u32))) {
+                    let e = f64::from(e);
+                    self.mesh_sq_sum += e * e;
+                    self.mesh_sum += e;
+                    self.mesh_count += 1;
+                    acc.mesh_max_mm = acc.mesh_max_mm.max(e);
+                }
+            }
+        }
+    }
+
+    /// Marks the take as stopped early, with the reason.
+    pub fn stopped(&mut self, reason: String) {
+        self.metrics.stopped = Some(reason);
+    }
+
+    /// The metrics so far, with `wall_secs` of running time.
+    pub fn snapshot(&self, wall_secs: f64) -> Metrics {
+        let mut m = self.metrics.clone();
+        m.wall_secs = wall_secs;
+        m.throughput_fps = if wall_secs > 0.0 {
+            m.frames_out as f64 / wall_secs
+        } else {
+            0.0
+        };
+        m.latency_ms = self
+            .stages
+            .iter()
+            .map(|(s, h)| (s.name().to_string(), h.stats()))
+            .collect();
+        m.latency_ms
+            .insert("end_to_end".into(), self.end_to_end.stats());
+        let total = m.frames_out * m.labeling.markers as u64;
+        m.labeling.labeled_fraction = if total > 0 {
+            m.labeling.observed as f64 / total as f64
+        } else {
+            0.0
+        };
+        if let (Some(a), Some(b)) = (self.first_tc, self.last_tc) {
+            m.timecode = Some(TimecodeRange {
+                rate: a.rate.to_string(),
+                first: a.to_string_with_rate(),
+                last: b.to_string_with_rate(),
+            });
+        }
+        if let Some(acc) = &mut m.accuracy {
+            acc.bundle_rms_mm = if self.bundle_count > 0 {
+                (self.bundle_sq_sum / self.bundle_count as f64).sqrt()
+            } else {
+                f64::NAN
+            };
+            if self.mesh_count > 0 {
+                acc.mesh_rms_mm = (self.mesh_sq_sum / self.mesh_count as f64).sqrt();
+                acc.mesh_mean_mm = self.mesh_sum / self.mesh_count as f64;
+            } else {
+                acc.mesh_rms_mm = f64::NAN;
+                acc.mesh_mean_mm = f64::NAN;
+            }
+        }
+        m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_quantiles_within_a_bin() {
+        let mut h = LatencyHistogram::default();
+        for i in 1..=1000 {
+            h.add(f64::from(i) * 0.01); // 0.01 .. 10 ms
+        }
+        let s = h.stats();
+        assert!((s.mean - 5.005).abs() < 1e-9);
+        assert!((s.p50 / 5.0 - 1.0).abs() < 0.02, "{}", s.p50);
+        assert!((s.p99 / 9.9 - 1.0).abs() < 0.02, "{}", s.p99);
+        assert_eq!(s.max, 10.0);
+        assert_eq!(s.count, 1000);
+        let empty = LatencyHistogram::default().stats();
+        assert!(empty.p50.is_nan());
+    }
+}

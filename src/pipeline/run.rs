@@ -1,0 +1,693 @@
+//! [`run`]: builds the stage threads and channels, runs a take, returns its metrics.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use crossbeam_channel::{Receiver, Sender, TrySendError, bounded};
+use nalgebra::Point3;
+
+use super::PipelineError;
+use super::frame::{BundleStatus, FrameResult, LabelCounts, MarkerResult, Stage};
+use super::metrics::{Metrics, MetricsCollector};
+use super::sink::{SessionMeta, Sink};
+use super::truth::GroundTruth;
+use crate::align::{PoseSource, StabilizeParams, Stabilizer};
+use crate::bundles::FrameBundles;
+use crate::camera::StereoRig;
+use crate::capture::{CaptureError, FrameSource};
+use crate::dataset::MarkerLayout;
+use crate::enhance::Enhancer;
+use crate::mesh::Mesh;
+use crate::solve::Solver;
+use crate::timecode::TimecodeRate;
+use crate::track::{DetectParams, LabelParams, Labeler, detect_markers};
+
+/// Everything a take needs besides its source and sinks.
+pub struct PipelineConfig {
+    /// The marker layout ([`FrameResult::markers`] is in its order).
+    pub layout: Arc<MarkerLayout>,
+    /// Each layout marker's neutral position, head frame, mm.
+    pub neutral_markers_head: Arc<Vec<Point3<f64>>>,
+    /// The stereo rig (the source's calibration, or one given on the command line).
+    pub rig: StereoRig,
+    /// Marker detection.
+    pub detect: DetectParams,
+    /// Labeling.
+    pub label: LabelParams,
+    /// Head stabilization.
+    pub stabilize: StabilizeParams,
+    /// Dense reconstruction; None: bundles only.
+    pub solver: Option<Solver>,
+    /// Detail enhancement of the solved mesh; None: off.
+    pub enhancer: Option<Arc<Enhancer>>,
+    /// The dataset's neutral mesh (topology and UVs for the mesh sinks).
+    pub neutral: Option<Arc<Mesh>>,
+    /// Face vertices of the neutral (for accuracy figures).
+    pub face_vertices: Option<std::ops::RangeInclusive<u32>>,
+    /// Ground truth, for accuracy figures.
+    pub ground_truth: Option<Arc<GroundTruth>>,
+    /// Frames each channel holds. Default 4: enough to absorb jitter between stages,
+    /// small enough to keep latency and memory (two images per frame) bounded.
+    pub channel_capacity: usize,
+    /// Gap-filled bundles: confidence halves every this many frames since the marker was
+    /// last observed. Default 15.
+    pub gap_fill_half_life_frames: f64,
+    /// Name of the take (for sinks).
+    pub name: String,
+    /// Timecode rate of the source, when known (for sinks).
+    pub timecode_rate: Option<TimecodeRate>,
+    /// Index of the source's first frame (for sinks).
+    pub first_frame: usize,
+    /// Frames the source will deliver, when known (for sinks and progress).
+    pub frame_count: Option<usize>,
+}
+
+impl PipelineConfig {
+    /// A configuration with default parameters, bundles only (no solve, no enhance).
+    pub fn new(
+        layout: Arc<MarkerLayout>,
+        neutral_markers_head: Arc<Vec<Point3<f64>>>,
+        rig: StereoRig,
+    ) -> Self {
+        Self {
+            layout,
+            neutral_markers_head,
+            rig,
+            detect: DetectParams::default(),
+            label: LabelParams::default(),
+            stabilize: StabilizeParams::default(),
+            solver: None,
+            enhancer: None,
+            neutral: None,
+            face_vertices: None,
+            ground_truth: None,
+            channel_capacity: 4,
+            gap_fill_half_life_frames: 15.0,
+            name: "take".into(),
+            timecode_rate: None,
+            first_frame: 0,
+            frame_count: None,
+        }
+    }
+}
+
+/// Counters the source thread shares with the sink thread.
+#[derive(Debug, Default)]
+struct SourceCounters {
+    frames_in: AtomicU64,
+    dropped: AtomicU64,
+    gaps: AtomicUsize,
+}
+
+/// The first error of the take, shared so the sink thread can record why it stopped.
+type ErrorSlot = Arc<Mutex<Option<PipelineError>>>;
+
+fn record(slot: &ErrorSlot, e: PipelineError) -> PipelineError {
+    if let Ok(mut s) = slot.lock()
+        && s.is_none()
+    {
+        *s = Some(e.clone());
+    }
+    e
+}
+
+fn stage_err(stage: Stage, frame: Option<usize>, message: impl Into<String>) -> PipelineError {
+    PipelineError::Stage {
+        stage,
+        frame,
+        message: message.into(),
+    }
+}
+
+fn spawn<T: Send + 'static>(
+    stage: Stage,
+    f: impl FnOnce() -> Result<T, PipelineError> + Send + 'static,
+) -> Result<JoinHandle<Result<T, PipelineError>>, PipelineError> {
+    std::thread::Builder::new()
+        .name(format!("helmcap:{}", stage.name()))
+        .spawn(f)
+        .map_err(|e| {
+            PipelineError::Thread(format!("helmcap:{} could not start: {e}", stage.name()))
+        })
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+/// The frame a capture error names, if any.
+fn capture_error_frame(e: &CaptureError) -> Option<usize> {
+    match e {
+        CaptureError::Decode { frame, .. }
+        | CaptureError::Size { frame, .. }
+        | CaptureError::MissingImage { frame, .. } => Some(*frame),
+        _ => None,
+    }
+}
+
+/// Runs a take: frames from `source` through every stage into `sinks`, until the source
+/// ends, `stop` is set (Ctrl-C), or a stage fails (see the module docs for ordering and
+/// shutdown). Sinks get [`Sink::finish`] in every case.
+///
+/// # Errors
+/// [`PipelineError::Config`] before anything runs (the layout and neutral positions
+/// disagree, a stage cannot be built, a sink's `begin` fails); otherwise the first stage
+/// or sink error, naming the stage and frame (the metrics of the frames that went through
+/// are still passed to every sink's `finish`).
+pub fn run(
+    mut source: Box<dyn FrameSource>,
+    config: PipelineConfig,
+    mut sinks: Vec<Box<dyn Sink>>,
+    stop: Arc<AtomicBool>,
+) -> Result<Metrics, PipelineError> {
+    let PipelineConfig {
+        layout,
+        neutral_markers_head,
+        rig,
+        detect,
+        label,
+        stabilize,
+        solver,
+        enhancer,
+        neutral,
+        face_vertices,
+        ground_truth,
+        channel_capacity,
+        gap_fill_half_life_frames,
+        name,
+        timecode_rate,
+        first_frame,
+        frame_count,
+    } = config;
+    let config_err = PipelineError::Config;
+    detect
+        .validate()
+        .map_err(|e| config_err(format!("detection: {e}")))?;
+    if neutral_markers_head.len() != layout.len() {
+        return Err(config_err(format!(
+            "{} neutral marker positions for {} layout markers",
+            neutral_markers_head.len(),
+            layout.len()
+        )));
+    }
+    if let (Some(mesh), Some(_)) = (&neutral, &solver)
+        && let Some(m) = layout
+            .markers
+            .iter()
+            .find(|m| m.vertex as usize >= mesh.vertex_count())
+    {
+        return Err(config_err(format!(
+            "marker {} is on vertex {}, the neutral mesh has {}",
+            m.name,
+            m.vertex,
+            mesh.vertex_count()
+        )));
+    }
+    let labeler = Labeler::new(rig.clone(), &layout, neutral_markers_head.to_vec(), label)
+        .map_err(|e| config_err(e.to_string()))?;
+    let stabilizer = Stabilizer::new(&layout, neutral_markers_head.to_vec(), stabilize)
+        .map_err(|e| config_err(e.to_string()))?;
+    let capacity = channel_capacity.max(1);
+    let fps = source.fps();
+    let live = source.is_live();
+    let meta = SessionMeta {
+        name,
+        fps,
+        timecode_rate,
+        first_frame,
+        frame_count,
+        layout: layout.clone(),
+        neutral_markers_head: neutral_markers_head.clone(),
+        neutral: if solver.is_some() {
+            neutral.clone()
+        } else {
+            None
+        },
+        face_vertices: face_vertices.clone(),
+        rig: Some(rig.clone()),
+        image_size: Some((rig.cam0.width_px, rig.cam0.height_px)),
+    };
+    let solves = solver.is_some();
+    let errors: ErrorSlot = Arc::new(Mutex::new(None));
+    let counters = Arc::new(SourceCounters::default());
+
+    // Sinks begin before any thread starts: a sink that cannot start stops the take.
+    for s in &mut sinks {
+        s.begin(&meta).map_err(|e| PipelineError::Sink {
+            sink: s.name().to_string(),
+            frame: None,
+            message: e.to_string(),
+        })?;
+    }
+    let started = Instant::now();
+
+    let (to_track, track_in) = bounded::<Box<FrameResult>>(capacity);
+    let (to_stabilize, stabilize_in) = bounded::<Box<FrameResult>>(capacity);
+    let (to_solve, solve_in) = bounded::<Box<FrameResult>>(capacity);
+    let (to_enhance, enhance_in) = bounded::<Box<FrameResult>>(capacity);
+    let (to_sinks, sinks_in) = bounded::<Box<FrameResult>>(capacity);
+    let marker_count = layout.len();
+
+    let mut handles: Vec<(Stage, JoinHandle<Result<(), PipelineError>>)> = Vec::new();
+    let spawned = (|| -> Result<(), PipelineError> {
+        // Source.
+        {
+            let stop = stop.clone();
+            let counters = counters.clone();
+            let errors = errors.clone();
+            handles.push((
+                Stage::Source,
+                spawn(Stage::Source, move || {
+                    source_stage(
+                        source.as_mut(),
+                        live,
+                        marker_count,
+                        &to_track,
+                        &stop,
+                        &counters,
+                    )
+                    .map_err(|e| record(&errors, e))
+                })?,
+            ));
+        }
+        // Track.
+        {
+            let errors = errors.clone();
+            let mut labeler = labeler;
+            handles.push((
+                Stage::Track,
+                spawn(Stage::Track, move || {
+                    for mut f in track_in {
+                        let t = Instant::now();
+                        track_frame(&mut f, &mut labeler, &detect);
+                        f.timings.set(Stage::Track, ms_since(t));
+                        if to_stabilize.send(f).is_err() {
+                            break;
+                        }
+                    }
+                    Ok(())
+                })
+                .map_err(|e| record(&errors, e))?,
+            ));
+        }
+        // Stabilize.
+        {
+            let truth = ground_truth.clone();
+            let mut stabilizer = stabilizer;
+            handles.push((
+                Stage::Stabilize,
+                spawn(Stage::Stabilize, move || {
+                    for mut f in stabilize_in {
+                        let t = Instant::now();
+                        stabilize_frame(&mut f, &mut stabilizer, truth.as_deref());
+                        f.timings.set(Stage::Stabilize, ms_since(t));
+                        if to_solve.send(f).is_err() {
+                            break;
+                        }
+                    }
+                    Ok(())
+                })?,
+            ));
+        }
+        // Solve (also gap-fills markers from the solved surface).
+        {
+            let errors = errors.clone();
+            let truth = if enhancer.is_none() {
+                ground_truth.clone()
+            } else {
+                None
+            };
+            let layout = layout.clone();
+            let mut solver = solver;
+            let next = if enhancer.is_some() {
+                to_enhance.clone()
+            } else {
+                to_sinks.clone()
+            };
+            handles.push((
+                Stage::Solve,
+                spawn(Stage::Solve, move || {
+                    let mut last_seen: Vec<Option<usize>> = vec![None; layout.len()];
+                    for mut f in solve_in {
+                        let t = Instant::now();
+                        if let Some(s) = solver.as_mut() {
+                            solve_frame(
+                                &mut f,
+                                s,
+                                &layout,
+                                &mut last_seen,
+                                gap_fill_half_life_frames,
+                                truth.as_deref(),
+                            )
+                            .map_err(|e| record(&errors, e))?;
+                            f.timings.set(Stage::Solve, ms_since(t));
+                        }
+                        if next.send(f).is_err() {
+                            break;
+                        }
+                    }
+                    Ok(())
+                })?,
+            ));
+        }
+        drop(to_enhance);
+        // Enhance.
+        if let Some(enhancer) = enhancer {
+            let errors = errors.clone();
+            let truth = ground_truth.clone();
+            let next = to_sinks.clone();
+            handles.push((
+                Stage::Enhance,
+                spawn(Stage::Enhance, move || {
+                    for mut f in enhance_in {
+                        let t = Instant::now();
+                        if let Some(mesh) = &f.mesh {
+                            let detailed = enhancer.enhance(mesh).map_err(|e| {
+                                record(
+                                    &errors,
+                                    stage_err(Stage::Enhance, Some(f.index), e.to_string()),
+                                )
+                            })?;
+                            if let Some(truth) = &truth {
+                                f.mesh_error_mm =
+                                    truth.mesh_error_mm(f.index, &detailed).map(Arc::new);
+                            }
+                            f.mesh = Some(Arc::new(detailed));
+                            f.enhanced = true;
+                        }
+                        f.timings.set(Stage::Enhance, ms_since(t));
+                        if next.send(f).is_err() {
+                            break;
+                        }
+                    }
+                    Ok(())
+                })?,
+            ));
+        }
+        drop(to_sinks);
+        Ok(())
+    })();
+
+    // Sinks run on their own thread too, so a slow sink shows as its own latency.
+    let sink_result = match spawned {
+        Err(e) => {
+            stop.store(true, Ordering::SeqCst);
+            Err(e)
+        }
+        Ok(()) => {
+            let errors = errors.clone();
+            let counters = counters.clone();
+            let stop = stop.clone();
+            let handle = spawn(Stage::Sinks, move || {
+                let r = sink_stage(
+                    &mut sinks,
+                    &sinks_in,
+                    &counters,
+                    &errors,
+                    &stop,
+                    started,
+                    marker_count,
+                    fps,
+                    solves,
+                    face_vertices.as_ref(),
+                );
+                drop(sinks_in);
+                r
+            });
+            match handle {
+                Ok(h) => h.join().unwrap_or_else(|_| {
+                    Err(PipelineError::Thread("helmcap:sinks panicked".into()))
+                }),
+                Err(e) => Err(e),
+            }
+        }
+    };
+    // Join the stages in order; the first error in pipeline order wins, else the sinks'.
+    let mut first_error = None;
+    for (stage, h) in handles {
+        let r = h
+            .join()
+            .unwrap_or_else(|_| Err(PipelineError::Thread(format!("helmcap:{stage} panicked"))));
+        if let Err(e) = r
+            && first_error.is_none()
+        {
+            first_error = Some(e);
+        }
+    }
+    let recorded = errors.lock().ok().and_then(|s| s.clone());
+    match (recorded.or(first_error), sink_result) {
+        (Some(e), _) => Err(e),
+        (None, r) => r,
+    }
+}
+
+/// The source stage: frames from the source into the first channel.
+fn source_stage(
+    source: &mut dyn FrameSource,
+    live: bool,
+    marker_count: usize,
+    out: &Sender<Box<FrameResult>>,
+    stop: &AtomicBool,
+    counters: &SourceCounters,
+) -> Result<(), PipelineError> {
+    let mut next_index = 0usize;
+    loop {
+        if stop.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        let t = Instant::now();
+        let Some(item) = source.next_frame() else {
+            counters.gaps.store(source.gaps(), Ordering::SeqCst);
+            return Ok(());
+        };
+        counters.gaps.store(source.gaps(), Ordering::SeqCst);
+        let frame = item.map_err(|e| {
+            stage_err(
+                Stage::Source,
+                capture_error_frame(&e).or(Some(next_index)),
+                e.to_string(),
+            )
+        })?;
+        next_index = frame.index + 1;
+        counters.frames_in.fetch_add(1, Ordering::SeqCst);
+        let mut f = Box::new(FrameResult::new(
+            frame.index,
+            frame.timestamp_ns,
+            frame.timecode,
+            frame.images,
+            marker_count,
+        ));
+        f.timings.set(Stage::Source, ms_since(t));
+        if live {
+            match out.try_send(f) {
+                Ok(()) => {}
+                Err(TrySendError::Full(f)) => {
+                    counters.dropped.fetch_add(1, Ordering::SeqCst);
+                    tracing::trace!("frame {} dropped at the source: pipeline full", f.index);
+                }
+                Err(TrySendError::Disconnected(_)) => return Ok(()),
+            }
+        } else if out.send(f).is_err() {
+            return Ok(());
+        }
+    }
+}
+
+/// Detection in both cameras (in parallel, inside the labeler's predicted regions) and
+/// labeling.
+fn track_frame(f: &mut FrameResult, labeler: &mut Labeler, detect: &DetectParams) {
+    let rois = labeler.predicted_rois();
+    let params = |c: usize| DetectParams {
+        roi: rois[c].or(detect.roi),
+        ..detect.clone()
+    };
+    let (p0, p1) = (params(0), params(1));
+    let images = f.images.clone();
+    let (d0, d1) = rayon::join(
+        || detect_markers(&images[0], &p0),
+        || detect_markers(&images[1], &p1),
+    );
+    let labeled = labeler.process(f.index, [&d0, &d1]);
+    for (r, m) in f.markers.iter_mut().zip(&labeled.markers) {
+        if let Some(m) = m {
+            *r = MarkerResult {
+                status: BundleStatus::Observed,
+                point_in_cam0: Some(m.bundle.point_in_cam0),
+                point_in_head: None,
+                pixels: Some(m.pixels),
+                confidence: m.bundle.confidence,
+                reprojection_px: m.bundle.reprojection_px,
+                reacquired: m.reacquired,
+            };
+        }
+    }
+    let s = &labeled.stats;
+    f.label_counts = LabelCounts {
+        detections: s.detections,
+        labeled: s.labeled,
+        reacquired: s.reacquired,
+        rejected: s.rejected,
+        acquiring: s.acquiring,
+    };
+    f.detections = [d0, d1];
+}
+
+/// Head pose and head-frame bundles; bundle accuracy against ground truth.
+fn stabilize_frame(f: &mut FrameResult, stabilizer: &mut Stabilizer, truth: Option<&GroundTruth>) {
+    let observed: Vec<Option<(Point3<f64>, f64)>> = f
+        .markers
+        .iter()
+        .map(|m| match (m.status, m.point_in_cam0) {
+            (BundleStatus::Observed, Some(p)) => Some((p, m.confidence)),
+            _ => None,
+        })
+        .collect();
+    let s = stabilizer.process(&observed);
+    f.cam0_from_head = s.cam0_from_head;
+    f.pose_source = s.pose_source;
+    for (i, m) in f.markers.iter_mut().enumerate() {
+        if m.status != BundleStatus::Observed {
+            continue;
+        }
+        match s.bundles_in_head.get(i).copied().flatten() {
+            Some(h) => m.point_in_head = Some(h),
+            None => {
+                // Observed but implausible, or no pose to carry it into the head frame.
+                m.status = BundleStatus::Dropped;
+                m.confidence = 0.0;
+            }
+        }
+    }
+    if f.pose_source == PoseSource::Missing {
+        tracing::trace!("frame {}: no head pose", f.index);
+    }
+    if let Some(truth) = truth {
+        f.bundle_error_rms_mm = truth.bundle_rms_mm(f.index, &s.bundles_in_head);
+    }
+}
+
+/// Dense solve from the observed head-frame bundles, gap filling of the other markers
+/// from the solved surface, and mesh accuracy against ground truth.
+fn solve_frame(
+    f: &mut FrameResult,
+    solver: &mut Solver,
+    layout: &MarkerLayout,
+    last_seen: &mut [Option<usize>],
+    half_life_frames: f64,
+    truth: Option<&GroundTruth>,
+) -> Result<(), PipelineError> {
+    let positions: Vec<Option<Point3<f64>>> = f
+        .markers
+        .iter()
+        .map(|m| match m.status {
+            BundleStatus::Observed => m.point_in_head,
+            _ => None,
+        })
+        .collect();
+    for (seen, p) in last_seen.iter_mut().zip(&positions) {
+        if p.is_some() {
+            *seen = Some(f.index);
+        }
+    }
+    if positions.iter().all(Option::is_none) {
+        tracing::trace!("frame {}: no bundle to solve", f.index);
+        return Ok(());
+    }
+    let bundles = FrameBundles {
+        frame: f.index as u64,
+        positions,
+    };
+    let mesh = solver
+        .solve(&bundles)
+        .map_err(|e| stage_err(Stage::Solve, Some(f.index), e.to_string()))?;
+    for ((m, marker), seen) in f
+        .markers
+        .iter_mut()
+        .zip(&layout.markers)
+        .zip(last_seen.iter())
+    {
+        if m.status == BundleStatus::Missing
+            && let Some(p) = mesh.get(marker.vertex as usize)
+        {
+            m.status = BundleStatus::GapFilled;
+            m.point_in_head = Some(*p);
+            m.confidence = match seen {
+                Some(s) => 0.5f64.powf((f.index.saturating_sub(*s)) as f64 / half_life_frames),
+                None => 0.0,
+            };
+        }
+    }
+    if let Some(truth) = truth {
+        f.mesh_error_mm = truth.mesh_error_mm(f.index, &mesh).map(Arc::new);
+    }
+    f.mesh = Some(Arc::new(mesh));
+    Ok(())
+}
+
+/// The sink stage: every finished frame to every sink, metrics, and `finish` at the end.
+#[allow(clippy::too_many_arguments)]
+fn sink_stage(
+    sinks: &mut [Box<dyn Sink>],
+    input: &Receiver<Box<FrameResult>>,
+    counters: &SourceCounters,
+    errors: &ErrorSlot,
+    stop: &AtomicBool,
+    started: Instant,
+    marker_count: usize,
+    fps: f64,
+    solves: bool,
+    face_vertices: Option<&std::ops::RangeInclusive<u32>>,
+) -> Result<Metrics, PipelineError> {
+    let mut collector = MetricsCollector::new(marker_count, fps, solves);
+    let mut failure: Option<PipelineError> = None;
+    for mut f in input.iter() {
+        let t = Instant::now();
+        for s in sinks.iter_mut() {
+            if let Err(e) = s.write(&f) {
+                failure = Some(PipelineError::Sink {
+                    sink: s.name().to_string(),
+                    frame: Some(f.index),
+                    message: e.to_string(),
+                });
+                break;
+            }
+        }
+        if let Some(e) = &failure {
+            record(errors, e.clone());
+            stop.store(true, Ordering::SeqCst);
+            break;
+        }
+        f.timings.set(Stage::Sinks, ms_since(t));
+        collector.frame_out(&f, ms_since(f.received_at), face_vertices);
+    }
+    collector.set_source_counts(
+        counters.frames_in.load(Ordering::SeqCst),
+        counters.dropped.load(Ordering::SeqCst),
+        counters.gaps.load(Ordering::SeqCst),
+    );
+    // An upstream error is recorded before that stage's channel disconnects.
+    let upstream = errors.lock().ok().and_then(|s| s.clone());
+    if let Some(e) = upstream.as_ref().or(failure.as_ref()) {
+        collector.stopped(e.to_string());
+    } else if stop.load(Ordering::SeqCst) {
+        collector.stopped("interrupted".into());
+    }
+    let metrics = collector.snapshot(started.elapsed().as_secs_f64());
+    let mut finish_error = None;
+    for s in sinks.iter_mut() {
+        if let Err(e) = s.finish(&metrics) {
+            tracing::error!("sink {}: {e}", s.name());
+            finish_error.get_or_insert(PipelineError::Sink {
+                sink: s.name().to_string(),
+                frame: None,
+                message: e.to_string(),
+            });
+        }
+    }
+    match failure.or(finish_error) {
+        Some(e) => Err(e),
+        None => Ok(metrics),
+    }
+}

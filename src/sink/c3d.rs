@@ -1,0 +1,475 @@
+//! C3D export of the labeled bundles (`bundles.c3d`), the motion-capture industry's marker
+//! format, written by hand after the C3D specification (C3D.ORG, "The C3D File Format
+//! User Guide"): Intel byte order, floating-point data, one 512-byte header block, the
+//! parameter section from block 2, then the 3D data frame after frame.
+//!
+//! - Points: the layout's markers in layout order, labelled with their names
+//!   (`POINT:LABELS`, more than 255 markers continue in `LABELS2`, ...), millimetres in the
+//!   head frame (`POINT:UNITS = "mm"`), `POINT:RATE` = the camera rate.
+//! - Frame numbers are 1-based in C3D: the first frame written is C3D frame `index + 1`
+//!   (header word 4, and `TRIAL:ACTUAL_START_FIELD`). Frames missing from the take (source
+//!   gaps) are written with every point invalid, so C3D frame numbers stay consecutive.
+//! - Per point, the fourth word holds the camera mask (high byte) and the residual (low
+//!   byte, in units of |`POINT:SCALE`| = 0.1 mm): observed bundles are seen by cameras 1
+//!   and 2 with the triangulation's reprojection error converted to mm at the marker's
+//!   depth (at least 1 unit); gap-filled bundles have residual 0 and no camera (the C3D
+//!   convention for interpolated points); dropped and missing markers are invalid (the
+//!   word is −1, coordinates 0).
+//! - Timecode, when the take has one, in the `TIMECODE` group: `START` (the first frame's
+//!   timecode with its rate, `01:00:00:00.0@30`), `RATE` (`30`, `29.97df`, ...),
+//!   `DROP_FRAMES` (0/1), `SUBFRAMES_PER_FRAME` (camera frames per timecode frame) and
+//!   `FIRST_FRAME` (the C3D frame the start timecode belongs to).
+//!
+//! The data goes to a temporary file as frames arrive; [`Sink::finish`] writes header and
+//! parameters and publishes the file atomically.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+use super::staged_file::StagedFile;
+use crate::pipeline::{BundleStatus, FrameResult, Metrics, SessionMeta, Sink, SinkError};
+use crate::timecode::Timecode;
+
+/// `POINT:SCALE`: negative = floating-point data; its magnitude is the residual unit, mm.
+const POINT_SCALE: f32 = -0.1;
+/// Processor type of the parameter section: Intel.
+const PROCESSOR_INTEL: u8 = 84;
+/// Largest C3D frame number the 16-bit header fields hold.
+const MAX_FRAME: usize = 65_535;
+
+/// A parameter value.
+enum Value {
+    Int(Vec<i16>),
+    Float(Vec<f32>),
+    /// One string.
+    Text(String),
+    /// Several strings padded to one length (a 2D char array).
+    Texts(Vec<String>),
+}
+
+/// Serializes the parameter section (groups, then parameters), padded to whole blocks.
+struct ParameterWriter {
+    groups: Vec<(String, String)>,
+    params: Vec<(usize, String, String, Value)>,
+}
+
+impl ParameterWriter {
+    fn new() -> Self {
+        Self {
+            groups: Vec::new(),
+            params: Vec::new(),
+        }
+    }
+
+    fn group(&mut self, name: &str, description: &str) -> usize {
+        self.groups.push((name.into(), description.into()));
+        self.groups.len()
+    }
+
+    fn param(&mut self, group: usize, name: &str, description: &str, value: Value) {
+        self.params
+            .push((group, name.into(), description.into(), value));
+    }
+
+    /// The records; `Err` names what does not fit the format's byte-sized fields.
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        let mut records: Vec<Vec<u8>> = Vec::new();
+        let short = |s: &str, what: &str| -> Result<u8, String> {
+            u8::try_from(s.len())
+                .ok()
+                .filter(|&n| n <= 127)
+                .ok_or_else(|| format!("{what} {s:?} is too long for C3D"))
+        };
+        for (id, (name, desc)) in self.groups.iter().enumerate() {
+            let mut r = vec![short(name, "group name")?, (-(id as i8 + 1)) as u8];
+            r.extend(name.to_ascii_uppercase().bytes());
+            let desc_len = u8::try_from(desc.len()).map_err(|_| "description too long")?;
+            r.extend(((3 + desc.len()) as u16).to_le_bytes());
+            r.push(desc_len);
+            r.extend(desc.bytes());
+            records.push(r);
+        }
+        for (group, name, desc, value) in &self.params {
+            let mut body: Vec<u8> = Vec::new();
+            match value {
+                Value::Int(v) => {
+                    body.push(2);
+                    push_dims(&mut body, &scalar_or_vector(v.len()))?;
+                    v.iter().for_each(|x| body.extend(x.to_le_bytes()));
+                }
+                Value::Float(v) => {
+                    body.push(4);
+                    push_dims(&mut body, &scalar_or_vector(v.len()))?;
+                    v.iter().for_each(|x| body.extend(x.to_le_bytes()));
+                }
+                Value::Text(s) => {
+                    body.push(0xFF); // −1: char
+                    push_dims(&mut body, &[s.len()])?;
+                    body.extend(s.bytes());
+                }
+                Value::Texts(v) => {
+                    let len = v.iter().map(String::len).max().unwrap_or(1).max(1);
+                    body.push(0xFF);
+                    push_dims(&mut body, &[len, v.len()])?;
+                    for s in v {
+                        body.extend(s.bytes());
+                        body.extend(std::iter::repeat_n(b' ', len - s.len()));
+                    }
+                }
+            }
+            let desc_len = u8::try_from(desc.len()).map_err(|_| "description too long")?;
+            body.push(desc_len);
+            body.extend(desc.bytes());
+            let mut r = vec![short(name, "parameter name")?, *group as u8];
+            r.extend(name.to_ascii_uppercase().bytes());
+            let offset = u16::try_from(2 + body.len())
+                .map_err(|_| format!("parameter {name} is too large for C3D"))?;
+            r.extend(offset.to_le_bytes());
+            r.extend(body);
+            records.push(r);
+        }
+        // The last record's offset is 0: the end of the parameters.
+        if let Some(last) = records.last_mut() {
+            let name_len = usize::from(last[0]);
+            last[2 + name_len] = 0;
+            last[3 + name_len] = 0;
+        }
+        let body: Vec<u8> = records.concat();
+        let blocks = (4 + body.len()).div_ceil(512);
+        let mut out = vec![
+            1,
+            0x50,
+            u8::try_from(blocks).map_err(|_| "too many parameters")?,
+            PROCESSOR_INTEL,
+        ];
+        out.extend(body);
+        out.resize(blocks * 512, 0);
+        Ok(out)
+    }
+}
+
+/// Dimensions of a numeric parameter: none for one value, else one.
+fn scalar_or_vector(len: usize) -> Vec<usize> {
+    if len == 1 { Vec::new() } else { vec![len] }
+}
+
+fn push_dims(body: &mut Vec<u8>, dims: &[usize]) -> Result<(), String> {
+    body.push(dims.len() as u8);
+    for &d in dims {
+        body.push(u8::try_from(d).map_err(|_| format!("dimension {d} is above 255"))?);
+    }
+    Ok(())
+}
+
+/// Writes `bundles.c3d` (see the module docs).
+#[derive(Debug)]
+pub struct C3dSink {
+    path: PathBuf,
+    fps: f64,
+    labels: Vec<String>,
+    focal_px: f64,
+    data: Option<StagedFile>,
+    first_frame: Option<usize>,
+    next_frame: usize,
+    first_timecode: Option<(usize, Timecode)>,
+}
+
+impl C3dSink {
+    /// A sink writing `path` (e.g. `<out>/bundles.c3d`).
+    pub fn new(path: &Path) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            fps: 0.0,
+            labels: Vec::new(),
+            focal_px: f64::NAN,
+            data: None,
+            first_frame: None,
+            next_frame: 0,
+            first_timecode: None,
+        }
+    }
+
+    fn invalid_frame(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.labels.len() * 16);
+        for _ in &self.labels {
+            for v in [0.0f32, 0.0, 0.0, -1.0] {
+                out.extend(v.to_le_bytes());
+            }
+        }
+        out
+    }
+}
+
+impl Sink for C3dSink {
+    fn name(&self) -> &str {
+        "c3d"
+    }
+
+    fn begin(&mut self, session: &SessionMeta) -> Result<(), SinkError> {
+        if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| SinkError::io(dir, e))?;
+        }
+        self.labels = session
+            .layout
+            .markers
+            .iter()
+            .map(|m| m.name.clone())
+            .collect();
+        if let Some(l) = self.labels.iter().find(|l| l.len() > 255 || !l.is_ascii()) {
+            return Err(SinkError::Other(format!(
+                "marker name {l:?} cannot be a C3D label (ASCII, at most 255 characters)"
+            )));
+        }
+        self.fps = session.fps;
+        self.focal_px = session.rig.as_ref().map_or(f64::NAN, |r| r.cam0.fx());
+        let mut data_path = self.path.clone().into_os_string();
+        data_path.push(".data");
+        self.data = Some(StagedFile::create(Path::new(&data_path))?);
+        Ok(())
+    }
+
+    fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        if self.first_frame.is_none() {
+            self.first_frame = Some(f.index);
+            self.next_frame = f.index;
+        }
+        if f.index < self.next_frame {
+            return Err(SinkError::Other(format!(
+                "frame {} arrived after frame {}",
+                f.index,
+                self.next_frame - 1
+            )));
+        }
+        let first = self.first_frame.unwrap_or(f.index);
+        if f.index - first + 1 > MAX_FRAME {
+            return Err(SinkError::Other(format!(
+                "a C3D file holds at most {MAX_FRAME} frames; split the take (--frames)"
+            )));
+        }
+        let gap = self.invalid_frame();
+        let mut bytes = Vec::new();
+        for _ in self.next_frame..f.index {
+            bytes.extend(&gap);
+        }
+        for r in &f.markers {
+            let (p, word) = match (r.status, r.point_in_head) {
+                (BundleStatus::Observed, Some(p)) => {
+                    let depth = r.point_in_cam0.map_or(f64::NAN, |c| c.z);
+                    let mm = r.reprojection_px * depth / self.focal_px;
+                    let units = if mm.is_finite() {
+                        (mm / f64::from(POINT_SCALE.abs()))
+                            .round()
+                            .clamp(1.0, 127.0)
+                    } else {
+                        1.0
+                    };
+                    // Cameras 1 and 2 (bits 0 and 1 of the high byte), residual low byte.
+                    (p, f32::from((0b11i16 << 8) | units as i16))
+                }
+                (BundleStatus::GapFilled, Some(p)) => (p, 0.0),
+                _ => (nalgebra::Point3::origin(), -1.0),
+            };
+            for v in [p.x as f32, p.y as f32, p.z as f32, word] {
+                bytes.extend(v.to_le_bytes());
+            }
+        }
+        if let Some(tc) = f.timecode {
+            self.first_timecode.get_or_insert((f.index, tc));
+        }
+        self.next_frame = f.index + 1;
+        match &mut self.data {
+            Some(d) => d.write_with(|w| w.write_all(&bytes)),
+            None => Err(SinkError::Other("c3d sink written before begin".into())),
+        }
+    }
+
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        let Some(data) = self.data.take() else {
+            return Ok(());
+        };
+        let data_path = data.close_temp()?;
+        let result = self.assemble(&data_path);
+        let _ = std::fs::remove_file(&data_path);
+        result
+    }
+}
+
+impl C3dSink {
+    fn assemble(&self, data_path: &Path) -> Result<(), SinkError> {
+        let points = self.labels.len();
+        let first = self.first_frame.unwrap_or(0) + 1;
+        let frames = self.first_frame.map_or(0, |f| self.next_frame - f);
+        let last = first + frames.max(1) - 1;
+        let too_many = || {
+            SinkError::Other(format!(
+                "C3D frame numbers end at {MAX_FRAME}; split the take (--frames)"
+            ))
+        };
+        let (first16, last16) = (
+            u16::try_from(first).map_err(|_| too_many())?,
+            u16::try_from(last).map_err(|_| too_many())?,
+        );
+        let points16 = i16::try_from(points)
+            .map_err(|_| SinkError::Other(format!("{points} markers do not fit C3D")))?;
+        let rate = self.fps as f32;
+        let other = |e: String| SinkError::Other(format!("{}: {e}", self.path.display()));
+        // The parameter section's size does not depend on DATA_START's value: build it
+        // once to size it, then with the right value.
+        let build = |data_start: u16| -> Result<Vec<u8>, String> {
+            let mut p = ParameterWriter::new();
+            let point = p.group("POINT", "3D point parameters");
+            p.param(
+                point,
+                "USED",
+                "markers per frame",
+                Value::Int(vec![points16]),
+            );
+            p.param(
+                point,
+                "FRAMES",
+                "frames",
+                Value::Int(vec![frames as u16 as i16]),
+            );
+            p.param(
+                point,
+                "DATA_START",
+                "first block of 3D data",
+                Value::Int(vec![data_start as i16]),
+            );
+            p.param(
+                point,
+                "SCALE",
+                "negative: float data; residual unit, mm",
+                Value::Float(vec![POINT_SCALE]),
+            );
+            p.param(point, "RATE", "frames per second", Value::Float(vec![rate]));
+            p.param(
+                point,
+                "UNITS",
+                "millimetres, head frame",
+                Value::Text("mm".into()),
+            );
+            for (k, chunk) in self.labels.chunks(255).enumerate() {
+                let suffix = if k == 0 {
+                    String::new()
+                } else {
+                    (k + 1).to_string()
+                };
+                p.param(
+                    point,
+                    &format!("LABELS{suffix}"),
+                    "marker names",
+                    Value::Texts(chunk.to_vec()),
+                );
+                p.param(
+                    point,
+                    &format!("DESCRIPTIONS{suffix}"),
+                    "",
+                    Value::Texts(chunk.iter().map(|_| "helmcap bundle".to_string()).collect()),
+                );
+            }
+            let analog = p.group("ANALOG", "analog data");
+            p.param(analog, "USED", "analog channels", Value::Int(vec![0]));
+            p.param(analog, "RATE", "analog rate", Value::Float(vec![rate]));
+            let trial = p.group("TRIAL", "trial");
+            let split = |n: usize| vec![(n & 0xFFFF) as u16 as i16, (n >> 16) as u16 as i16];
+            p.param(
+                trial,
+                "ACTUAL_START_FIELD",
+                "first frame",
+                Value::Int(split(first)),
+            );
+            p.param(
+                trial,
+                "ACTUAL_END_FIELD",
+                "last frame",
+                Value::Int(split(last)),
+            );
+            p.param(
+                trial,
+                "CAMERA_RATE",
+                "camera frames per second",
+                Value::Float(vec![rate]),
+            );
+            let manufacturer = p.group("MANUFACTURER", "writer");
+            p.param(manufacturer, "COMPANY", "", Value::Text("helmcap".into()));
+            p.param(manufacturer, "SOFTWARE", "", Value::Text("helmcap".into()));
+            p.param(
+                manufacturer,
+                "VERSION_LABEL",
+                "",
+                Value::Text(env!("CARGO_PKG_VERSION").into()),
+            );
+            if let Some((index, tc)) = self.first_timecode {
+                let g = p.group("TIMECODE", "SMPTE timecode of the take");
+                // The timecode of the first C3D frame (frames before the first stamped one
+                // have none: count back from it).
+                p.param(
+                    g,
+                    "START",
+                    "timecode of FIRST_FRAME, with rate",
+                    Value::Text(tc.to_string_with_rate()),
+                );
+                p.param(g, "RATE", "timecode rate", Value::Text(tc.rate.to_string()));
+                p.param(
+                    g,
+                    "DROP_FRAMES",
+                    "1: drop-frame",
+                    Value::Int(vec![i16::from(tc.rate.drop_frame)]),
+                );
+                p.param(
+                    g,
+                    "SUBFRAMES_PER_FRAME",
+                    "camera frames per timecode frame",
+                    Value::Int(vec![tc.subframes.max(1) as i16]),
+                );
+                p.param(
+                    g,
+                    "FIRST_FRAME",
+                    "C3D frame of START",
+                    Value::Int(vec![(index + 1) as u16 as i16]),
+                );
+            }
+            p.bytes()
+        };
+        let sized = build(0).map_err(other)?;
+        let data_start = 2 + sized.len() / 512;
+        let data_start16 =
+            u16::try_from(data_start).map_err(|_| other("parameters too large".into()))?;
+        let params = build(data_start16).map_err(other)?;
+        let mut header = vec![0u8; 512];
+        header[0] = 2;
+        header[1] = 0x50;
+        header[2..4].copy_from_slice(&(points as u16).to_le_bytes());
+        header[4..6].copy_from_slice(&0u16.to_le_bytes());
+        header[6..8].copy_from_slice(&first16.to_le_bytes());
+        header[8..10].copy_from_slice(&last16.to_le_bytes());
+        header[10..12].copy_from_slice(&10u16.to_le_bytes());
+        header[12..16].copy_from_slice(&POINT_SCALE.to_le_bytes());
+        header[16..18].copy_from_slice(&data_start16.to_le_bytes());
+        header[18..20].copy_from_slice(&0u16.to_le_bytes());
+        header[20..24].copy_from_slice(&rate.to_le_bytes());
+        let mut out = StagedFile::create(&self.path)?;
+        let data = std::fs::File::open(data_path).map_err(|e| SinkError::io(data_path, e))?;
+        out.write_with(|w| {
+            w.write_all(&header)?;
+            w.write_all(&params)?;
+            let mut reader = BufReader::with_capacity(1 << 16, data);
+            let mut written = 0usize;
+            loop {
+                let buf = reader.fill_buf()?;
+                if buf.is_empty() {
+                    break;
+                }
+                w.write_all(buf)?;
+                written += buf.len();
+                let n = buf.len();
+                reader.consume(n);
+            }
+            // The data section ends on a block boundary.
+            let pad = written.div_ceil(512) * 512 - written;
+            w.write_all(&vec![0u8; pad])
+        })?;
+        out.commit()
+    }
+}

@@ -1,0 +1,18 @@
+//! Sinks: where finished frames go. The CSV outputs (`bundles.csv`, `head_pose.csv`,
+//! `tracks.csv`), `metrics.json`, mesh sequences (OBJ, PLY), USD (`mesh.usda`) and C3D
+//! (`bundles.c3d`); every file is published atomically, also when a take stops early.
+//! Each sink implements [`crate::pipeline::Sink`].
+//!
+//! Depends on [`crate::pipeline`] (frame and sink types), [`crate::mesh`].
+
+pub mod c3d;
+pub mod csv;
+pub mod mesh;
+pub mod staged_file;
+pub mod usd;
+
+pub use c3d::C3dSink;
+pub use csv::{CsvSink, MetricsSink};
+pub use mesh::{MeshFormat, MeshSequenceSink};
+pub use staged_file::StagedFile;
+pub use usd::UsdSink;
