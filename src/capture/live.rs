@@ -485,6 +485,10 @@ pub struct LiveStats {
     pub stamped_local: u64,
     /// Switches between the sync box and the local clock.
     pub clock_switches: u64,
+    /// Frame indices after the last stereo frame that only one camera delivered before the
+    /// other ended its input (test cameras): `frames_out + gaps + trailing_unpaired` covers
+    /// every index either camera reached.
+    pub trailing_unpaired: u64,
     /// Frames of a size other than the first frame's (dropped).
     pub wrong_size: u64,
     /// The sync box's counters, when there is one.
@@ -690,6 +694,39 @@ impl LiveSource {
         Ok(true)
     }
 
+    /// At the end of input (camera `1 - other` ended): the frames `other` still delivers
+    /// have no partner; their indices after the last stereo frame are counted in
+    /// [`LiveStats::trailing_unpaired`], so every index up to the last frame either camera
+    /// delivered is accounted for.
+    fn count_trailing(&mut self, other: usize) {
+        let Some((last_t, last_i)) = self.last else {
+            return;
+        };
+        let interval = 1.0 / self.fps;
+        let index_of =
+            |t: Instant| last_i + (signed_secs(t, last_t) / interval).round().max(0.0) as usize;
+        let mut max_index = last_i;
+        let heads: Vec<Instant> = self
+            .heads
+            .iter_mut()
+            .filter_map(Option::take)
+            .map(|h| h.captured_at)
+            .collect();
+        for t in heads {
+            max_index = max_index.max(index_of(t));
+        }
+        let deadline = Instant::now() + Duration::from_millis(self.params.camera_lost_ms);
+        while let Ok(CameraMsg::Image(img)) = self.receivers[other].recv_deadline(deadline) {
+            self.stats.cameras[other].unpaired += 1;
+            max_index = max_index.max(index_of(img.captured_at));
+        }
+        let trailing = (max_index - last_i) as u64;
+        if trailing > 0 {
+            tracing::debug!("{trailing} frames after the last stereo frame had no pair");
+            self.stats.trailing_unpaired += trailing;
+        }
+    }
+
     /// The next stereo frame with its stamp; `None` at the end of input or after a stop.
     /// After an error, the source is finished (the next call returns `None`).
     pub fn next_stamped(&mut self) -> Option<Result<LiveFrame, CaptureError>> {
@@ -715,6 +752,9 @@ impl LiveSource {
         loop {
             for cam in 0..2 {
                 if !self.fill(cam)? {
+                    if !self.stop.load(Ordering::Relaxed) {
+                        self.count_trailing(1 - cam);
+                    }
                     return Ok(None);
                 }
             }
