@@ -1,14 +1,21 @@
 //! Frame sources. [`Replay`] reads a recording session folder (DESIGN.md §4): checks it
 //! (missing frames or images, wrong sizes, unreadable files) and yields stereo frames in
 //! order, either stopping at the first problem with an error naming the file and frame, or
-//! counting and logging each bad frame as a gap and going on.
+//! counting and logging each bad frame as a gap and going on. [`LiveSource`] pairs two live
+//! cameras' frames ([`live`]) and stamps them with the timecode of the serial sync box
+//! ([`syncbox`]); [`Recorder`] writes a session folder from them ([`recorder`]).
 //!
 //! Depends on [`crate::camera`].
 
 mod image;
+pub mod live;
+pub mod recorder;
 mod replay;
+pub mod syncbox;
 
 pub use image::{GrayImage, read_png_gray};
+pub use live::{LiveConfig, LiveFrame, LiveSource, LiveStats, StampClock};
+pub use recorder::{RecordReport, Recorder, RecorderParams};
 pub use replay::{Replay, ReplayParams, ReplayStats, SessionInfo, StereoFrame};
 
 use std::path::PathBuf;
@@ -109,6 +116,22 @@ pub enum CaptureError {
         frame: usize,
         /// The expected file.
         path: PathBuf,
+    },
+    /// A live device (camera, sync box) cannot be opened or used.
+    #[error("{device}: {message}")]
+    Device {
+        /// The device, e.g. `cam0 (device 0)`.
+        device: String,
+        /// What went wrong.
+        message: String,
+    },
+    /// A camera stopped delivering frames (unplugged, stalled past the timeout).
+    #[error("camera {camera} lost: {message}")]
+    CameraLost {
+        /// The camera.
+        camera: String,
+        /// What happened.
+        message: String,
     },
     /// The calibration file named by the session is invalid.
     #[error(transparent)]

@@ -8,8 +8,10 @@ mod bench_pipeline;
 mod dataset;
 mod demo;
 mod enhance;
+mod live;
 mod markers;
 mod register;
+mod record;
 mod replay;
 mod retime;
 mod rig;
@@ -63,6 +65,10 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Stereo calibration from image pairs of a target -> calibration YAML.
     Calibrate(calibrate::CalibrateArgs),
+    /// Record the live cameras (and the sync box's timecode) to a session folder.
+    Record(record::RecordArgs),
+    /// Run the pipeline on the live cameras (or test cameras): the outputs of replay.
+    Live(live::LiveArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -97,6 +103,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Calibrate(a) => calibrate::run(a),
         Command::Rig(c) => rig::run(c),
         Command::Register(a) => register::run(a),
+        Command::Record(a) => record::run(a),
+        Command::Live(a) => live::run(a),
     }
 }
 

@@ -1,0 +1,272 @@
+//! `helmcap live`: the pipeline on the live cameras (or test cameras), with the same outputs
+//! as `helmcap replay`; frames the pipeline cannot take in time are dropped at the source
+//! and counted.
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use helmcap::camera::StereoRig;
+use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
+use helmcap::lgi::LgiParams;
+use helmcap::pipeline::{GroundTruth, PipelineConfig, Sink};
+use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
+use helmcap::solve::Solver;
+use nalgebra::Point3;
+
+use super::DatasetArgs;
+use super::replay::{Export, load_layout, print_summary, stop_flag};
+
+/// Arguments of `helmcap live`.
+#[derive(Debug, clap::Args)]
+pub struct LiveArgs {
+    /// Live config: cameras, sync box, queues (see configs/live.toml).
+    #[arg(long, short, default_value = "configs/live.toml")]
+    pub config: PathBuf,
+    /// Use test cameras replaying this recording session at real-time pace instead of the
+    /// configured cameras (its ground truth, if any, is used for accuracy figures).
+    #[arg(long, value_name = "SESSION")]
+    pub test_source: Option<PathBuf>,
+    /// Serial port of the sync box, overriding the config's `[syncbox] port`.
+    #[arg(long, value_name = "PORT")]
+    pub sync_port: Option<String>,
+    /// Dataset manifest, or `builtin[:SEED]` for the built-in actor.
+    #[arg(long, short = 'd', default_value = "builtin")]
+    pub dataset: String,
+    /// Marker layout CSV (default for the built-in actor: its shipped layout).
+    #[arg(long, short = 'k', value_name = "CSV")]
+    pub markers: Option<PathBuf>,
+    /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json,
+    /// live_stats.json, exports).
+    #[arg(long, short, default_value = "out/live")]
+    pub out: PathBuf,
+    /// Export format (repeatable): obj, ply, usd, c3d.
+    #[arg(long, value_enum)]
+    pub export: Vec<Export>,
+    /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
+    #[arg(long)]
+    pub enhance: bool,
+    /// Stop after labeling and stabilization (no dense solve, no meshes).
+    #[arg(long)]
+    pub no_solve: bool,
+    /// Stop after this many stereo frames from the cameras.
+    #[arg(long, conflicts_with = "seconds")]
+    pub frames: Option<usize>,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Frames each stage channel holds.
+    #[arg(long, default_value_t = 4)]
+    pub queue: usize,
+    /// Do not read or write the dataset and LGI index caches.
+    #[arg(long)]
+    pub no_cache: bool,
+    /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
+    #[arg(long, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+}
+
+/// The live source, stopped after a frame count or a duration, publishing its counters.
+struct LimitedLive {
+    source: LiveSource,
+    max_frames: Option<usize>,
+    deadline: Option<Instant>,
+    frames: usize,
+    stats: Arc<Mutex<LiveStats>>,
+}
+
+impl LimitedLive {
+    fn publish(&self) {
+        if let Ok(mut s) = self.stats.lock() {
+            *s = self.source.stats();
+        }
+    }
+}
+
+impl FrameSource for LimitedLive {
+    fn next_frame(&mut self) -> Option<Result<StereoFrame, CaptureError>> {
+        if self.max_frames.is_some_and(|n| self.frames >= n)
+            || self.deadline.is_some_and(|d| Instant::now() >= d)
+        {
+            self.publish();
+            return None;
+        }
+        let next = self.source.next_frame();
+        self.frames += 1;
+        if next.as_ref().is_none_or(Result::is_err) || self.frames.is_multiple_of(30) {
+            self.publish();
+        }
+        next
+    }
+
+    fn fps(&self) -> f64 {
+        self.source.fps()
+    }
+
+    fn is_live(&self) -> bool {
+        true
+    }
+
+    fn rig(&self) -> Option<&StereoRig> {
+        self.source.rig()
+    }
+
+    fn gaps(&self) -> usize {
+        self.source.gaps()
+    }
+}
+
+/// Runs `helmcap live`.
+pub fn run(args: LiveArgs) -> anyhow::Result<()> {
+    if let Some(s) = args.seconds
+        && !(s > 0.0 && s.is_finite())
+    {
+        anyhow::bail!("--seconds {s} must be positive");
+    }
+    let live_config = super::record::load_config(&args.config, args.sync_port.as_deref())?;
+    let layout = load_layout(&args.dataset, args.markers.as_deref())?;
+    let ds = DatasetArgs {
+        dataset: args.dataset.clone(),
+        no_cache: args.no_cache,
+        cache_dir: args.cache_dir.clone(),
+    }
+    .load()?;
+    layout
+        .validate_for(&ds)
+        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
+    let neutral_markers: Vec<Point3<f64>> = layout
+        .markers
+        .iter()
+        .map(|m| ds.neutral.positions[m.vertex as usize])
+        .collect();
+    let layout = Arc::new(layout);
+    let ground_truth = match &args.test_source {
+        Some(session) => GroundTruth::load(session, &layout)
+            .with_context(|| format!("reading ground truth of {}", session.display()))?
+            .map(Arc::new),
+        None => None,
+    };
+    let mut solver = None;
+    let mut enhancer = None;
+    if !args.no_solve {
+        let params = LgiParams::default();
+        let index = super::solve::lgi_index_cached(
+            &ds,
+            &layout,
+            &params,
+            (!args.no_cache).then(|| {
+                args.cache_dir
+                    .clone()
+                    .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
+            }),
+        )?;
+        solver = Some(Solver::lgi(index, &params)?);
+        if args.enhance {
+            let params = super::enhance::read_params(None)?;
+            let (_, e) = super::enhance::build_enhancer(&args.dataset, &params)?;
+            enhancer = Some(Arc::new(e));
+        }
+    } else if !args.export.iter().all(|e| *e == Export::C3d) || args.enhance {
+        anyhow::bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
+    }
+
+    // The cameras start last, once everything slow is built.
+    let stop = stop_flag();
+    let mut source = live_config
+        .open_source(args.test_source.as_deref())
+        .context("opening the live source")?;
+    source.set_stop_flag(stop.clone());
+    let rig = source
+        .rig()
+        .cloned()
+        .context("the live config names no calibration (`calibration = ...`)")?;
+    let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
+    config.channel_capacity = args.queue;
+    config.name = "live".into();
+    config.timecode_rate = Some(source.timecode_rate());
+    config.frame_count = args.frames;
+    config.first_frame = 0;
+    config.ground_truth = ground_truth;
+    if let Some(s) = solver {
+        config.solver = Some(s);
+        config.neutral = Some(Arc::new(ds.neutral.clone()));
+        config.face_vertices = Some(ds.face_vertices.clone());
+        config.enhancer = enhancer;
+    }
+
+    let out = &args.out;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut outputs = vec![
+        out.join("bundles.csv"),
+        out.join("head_pose.csv"),
+        out.join("tracks.csv"),
+        out.join("metrics.json"),
+        out.join("live_stats.json"),
+    ];
+    let mut sinks: Vec<Box<dyn Sink>> = vec![
+        Box::new(CsvSink::new(out)),
+        Box::new(MetricsSink::new(&out.join("metrics.json"))),
+    ];
+    let mut exports = args.export.clone();
+    exports.dedup();
+    for e in exports {
+        let (sink, path): (Box<dyn Sink>, PathBuf) = match e {
+            Export::Obj => (
+                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Obj)),
+                out.join("mesh/frame_NNNNNN.obj"),
+            ),
+            Export::Ply => (
+                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Ply)),
+                out.join("mesh/frame_NNNNNN.ply"),
+            ),
+            Export::Usd => (
+                Box::new(UsdSink::new(&out.join("mesh.usda"))),
+                out.join("mesh.usda"),
+            ),
+            Export::C3d => (
+                Box::new(C3dSink::new(&out.join("bundles.c3d"))),
+                out.join("bundles.c3d"),
+            ),
+        };
+        sinks.push(sink);
+        outputs.push(path);
+    }
+    let stats = Arc::new(Mutex::new(source.stats()));
+    let limited = LimitedLive {
+        source,
+        max_frames: args.frames,
+        deadline: args
+            .seconds
+            .map(|s| Instant::now() + Duration::from_secs_f64(s)),
+        frames: 0,
+        stats: stats.clone(),
+    };
+    let result = helmcap::pipeline::run(Box::new(limited), config, sinks, stop);
+    let stats = stats.lock().map(|s| s.clone()).unwrap_or_default();
+    let stats_path = out.join("live_stats.json");
+    let json = serde_json::to_string_pretty(&stats)?;
+    helmcap::atomic_file::write_atomically(&stats_path, |w| {
+        std::io::Write::write_all(w, (json + "\n").as_bytes())
+    })
+    .with_context(|| format!("writing {}", stats_path.display()))?;
+    let metrics = result.map_err(|e| {
+        anyhow::Error::new(e).context(format!(
+            "live run stopped; outputs so far are in {}",
+            out.display()
+        ))
+    })?;
+    print_summary(&metrics, &outputs);
+    println!(
+        "cameras: {} stereo frames, {} gaps; timecode: {} frames from the sync box, {} from the local clock, {} switches",
+        stats.frames_out,
+        stats.gaps,
+        stats.stamped_syncbox,
+        stats.stamped_local,
+        stats.clock_switches
+    );
+    if let Some(reason) = &metrics.stopped {
+        eprintln!("stopped early: {reason}");
+    }
+    Ok(())
+}
