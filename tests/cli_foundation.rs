@@ -43,6 +43,18 @@ fn every_command_has_help() {
         vec!["dataset", "build", "--help"],
         vec!["dataset", "synth", "--help"],
         vec!["markers", "generate", "--help"],
+        vec!["solve", "--help"],
+        vec!["synth", "--help"],
+        vec!["calibrate", "--help"],
+        vec!["replay", "--help"],
+        vec!["live", "--help"],
+        vec!["record", "--help"],
+        vec!["enhance", "--help"],
+        vec!["retime", "--help"],
+        vec!["rig", "build", "--help"],
+        vec!["rig", "from-lgi", "--help"],
+        vec!["register", "--help"],
+        vec!["bench", "pipeline", "--help"],
     ] {
         let o = helmcap(&args, tmp.path());
         assert!(o.status.success(), "{args:?}: {}", stderr(&o));

@@ -2,16 +2,16 @@
 //! error line; long work shows a progress bar.
 
 mod bench;
-mod calibrate;
 mod bench_capture;
 mod bench_pipeline;
+mod calibrate;
 mod dataset;
 mod demo;
 mod enhance;
 mod live;
 mod markers;
-mod register;
 mod record;
+mod register;
 mod replay;
 mod retime;
 mod rig;

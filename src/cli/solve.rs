@@ -276,7 +276,6 @@ pub fn lgi_index_cached(
     params: &LgiParams,
     cache_dir: Option<PathBuf>,
 ) -> anyhow::Result<Arc<LgiIndex>> {
-    let (index, _) =
-        helmcap::lgi::cache::load_or_build(ds, layout, params, cache_dir.as_deref())?;
+    let (index, _) = helmcap::lgi::cache::load_or_build(ds, layout, params, cache_dir.as_deref())?;
     Ok(index)
 }

@@ -34,8 +34,8 @@ pub use obj::{
     read_obj, read_obj_positions, read_obj_str, write_obj, write_obj_positions, write_obj_to,
 };
 
-pub use subdivide::{Subdivision, SubdivisionScheme, subdivide_levels};
 pub use ply::{read_mesh, read_ply, read_ply_bytes, write_ply};
+pub use subdivide::{Subdivision, SubdivisionScheme, subdivide_levels};
 pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
 
 /// Errors from building, reading or writing a mesh.
