@@ -10,8 +10,7 @@ use anyhow::Context;
 use helmcap::camera::StereoRig;
 use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
 use helmcap::lgi::LgiParams;
-use helmcap::pipeline::{GroundTruth, PipelineConfig, Sink};
-use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
+use helmcap::pipeline::{GroundTruth, PipelineConfig};
 use helmcap::solve::Solver;
 use nalgebra::Point3;
 
@@ -197,41 +196,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
 
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mut outputs = vec![
-        out.join("bundles.csv"),
-        out.join("head_pose.csv"),
-        out.join("tracks.csv"),
-        out.join("metrics.json"),
-        out.join("live_stats.json"),
-    ];
-    let mut sinks: Vec<Box<dyn Sink>> = vec![
-        Box::new(CsvSink::new(out)),
-        Box::new(MetricsSink::new(&out.join("metrics.json"))),
-    ];
-    let mut exports = args.export.clone();
-    exports.dedup();
-    for e in exports {
-        let (sink, path): (Box<dyn Sink>, PathBuf) = match e {
-            Export::Obj => (
-                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Obj)),
-                out.join("mesh/frame_NNNNNN.obj"),
-            ),
-            Export::Ply => (
-                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Ply)),
-                out.join("mesh/frame_NNNNNN.ply"),
-            ),
-            Export::Usd => (
-                Box::new(UsdSink::new(&out.join("mesh.usda"))),
-                out.join("mesh.usda"),
-            ),
-            Export::C3d => (
-                Box::new(C3dSink::new(&out.join("bundles.c3d"))),
-                out.join("bundles.c3d"),
-            ),
-        };
-        sinks.push(sink);
-        outputs.push(path);
-    }
+    let (sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
+    outputs.push(out.join("live_stats.json"));
     let stats = Arc::new(Mutex::new(source.stats()));
     let limited = LimitedLive {
         source,

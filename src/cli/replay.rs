@@ -278,44 +278,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
 
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let mut outputs = vec![
-        out.join("bundles.csv"),
-        out.join("head_pose.csv"),
-        out.join("tracks.csv"),
-        out.join("metrics.json"),
-    ];
-    let mut sinks: Vec<Box<dyn Sink>> = vec![
-        Box::new(CsvSink::new(out)),
-        Box::new(MetricsSink::new(&out.join("metrics.json"))),
-    ];
-    let mut exports = args.export.clone();
-    exports.dedup();
-    for e in exports {
-        match e {
-            Export::Obj => {
-                sinks.push(Box::new(MeshSequenceSink::new(
-                    &out.join("mesh"),
-                    MeshFormat::Obj,
-                )));
-                outputs.push(out.join("mesh/frame_NNNNNN.obj"));
-            }
-            Export::Ply => {
-                sinks.push(Box::new(MeshSequenceSink::new(
-                    &out.join("mesh"),
-                    MeshFormat::Ply,
-                )));
-                outputs.push(out.join("mesh/frame_NNNNNN.ply"));
-            }
-            Export::Usd => {
-                sinks.push(Box::new(UsdSink::new(&out.join("mesh.usda"))));
-                outputs.push(out.join("mesh.usda"));
-            }
-            Export::C3d => {
-                sinks.push(Box::new(C3dSink::new(&out.join("bundles.c3d"))));
-                outputs.push(out.join("bundles.c3d"));
-            }
-        }
-    }
+    let (mut sinks, mut outputs) = file_sinks(out, &args.export);
     if let Some(rrd) = &args.rrd {
         sinks.push(rerun_sink(rrd)?);
         outputs.push(rrd.clone());
@@ -415,4 +378,47 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         eprintln!("stopped early: {reason}");
     }
     Ok(())
+}
+
+/// The file sinks every pipeline run writes into `out` (CSV and metrics), plus one per
+/// distinct `--export`, and the paths they write (for the summary).
+pub fn file_sinks(out: &Path, exports: &[Export]) -> (Vec<Box<dyn Sink>>, Vec<PathBuf>) {
+    let mut outputs = vec![
+        out.join("bundles.csv"),
+        out.join("head_pose.csv"),
+        out.join("tracks.csv"),
+        out.join("metrics.json"),
+    ];
+    let mut sinks: Vec<Box<dyn Sink>> = vec![
+        Box::new(CsvSink::new(out)),
+        Box::new(MetricsSink::new(&out.join("metrics.json"))),
+    ];
+    let mut seen: Vec<Export> = Vec::new();
+    for &e in exports {
+        if seen.contains(&e) {
+            continue;
+        }
+        seen.push(e);
+        let (sink, path): (Box<dyn Sink>, PathBuf) = match e {
+            Export::Obj => (
+                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Obj)),
+                out.join("mesh/frame_NNNNNN.obj"),
+            ),
+            Export::Ply => (
+                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Ply)),
+                out.join("mesh/frame_NNNNNN.ply"),
+            ),
+            Export::Usd => (
+                Box::new(UsdSink::new(&out.join("mesh.usda"))),
+                out.join("mesh.usda"),
+            ),
+            Export::C3d => (
+                Box::new(C3dSink::new(&out.join("bundles.c3d"))),
+                out.join("bundles.c3d"),
+            ),
+        };
+        sinks.push(sink);
+        outputs.push(path);
+    }
+    (sinks, outputs)
 }
