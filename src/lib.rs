@@ -17,7 +17,8 @@
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 //! - [`pipeline`]: the streaming pipeline (stage threads, frame envelope, metrics, the
 //!   sink interface).
-//! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D).
+//! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D) and the rerun
+//!   viewer / `.rrd` recordings.
 
 pub mod align;
 pub mod atomic_file;

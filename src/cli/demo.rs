@@ -104,6 +104,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         markers: None,
         out: args.out.join("replay"),
         rrd: rrd.clone(),
+        view: Default::default(),
         export: vec![Export::Usd, Export::Obj, Export::C3d],
         enhance: args.enhance,
         frames: None,
@@ -130,7 +131,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 }
             }
             None => println!(
-                "view it with `rerun {}` (pip install rerun-sdk for the viewer)",
+                "view it with `rerun {}` (`pip install rerun-sdk==0.36.3` gives the viewer)",
                 rrd.display()
             ),
         }

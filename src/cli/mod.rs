@@ -11,6 +11,7 @@ mod replay;
 mod retime;
 mod solve;
 mod synth;
+mod view;
 
 use std::path::{Path, PathBuf};
 
