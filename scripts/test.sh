@@ -6,4 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 if [ -f "$HOME/.cargo/env" ]; then . "$HOME/.cargo/env"; fi
+# The cross-check tools installed by setup.sh (python3 with pxr and c3d, the rerun command).
+python_env="${HELMCAP_PYTHON_ENV:-$HOME/.cache/helmcap-python}"
+if [ -d "$python_env/bin" ]; then export PATH="$python_env/bin:$PATH"; fi
 cargo test --locked "$@"

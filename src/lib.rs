@@ -19,7 +19,8 @@
 //!   from LGI.
 //! - [`pipeline`]: the streaming pipeline (stage threads, frame envelope, metrics, the
 //!   sink interface).
-//! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D).
+//! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D) and the rerun
+//!   viewer / `.rrd` recordings.
 
 pub mod align;
 pub mod atomic_file;

@@ -39,6 +39,8 @@ pub enum BenchCommand {
     },
     /// Replay throughput, live-paced latency and a memory soak of the pipeline.
     Pipeline(super::bench_pipeline::PipelineBenchArgs),
+    /// Time logging frames (camera images, markers, mesh) to a rerun recording.
+    Rerun(super::view::RerunBenchArgs),
     /// Time building the built-in actor and its dataset.
     Actor {
         /// Number of timed runs.
@@ -92,6 +94,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         } => bench_rig(&dataset, examples, runs)?,
         BenchCommand::Capture(a) => super::bench_capture::run(a)?,
         BenchCommand::Pipeline(a) => super::bench_pipeline::run(a)?,
+        BenchCommand::Rerun(a) => super::view::run_bench(a)?,
         BenchCommand::Actor { runs } => {
             let params = actor::ActorParams::default();
             let t = time_runs(runs, || {

@@ -96,14 +96,15 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         session.display()
     );
 
-    let rrd = super::replay::rerun_available().then(|| args.out.join("demo.rrd"));
+    let rrd = args.out.join("demo.rrd");
     let replay_args = ReplayArgs {
         session: session.clone(),
         calib: None,
         dataset,
         markers: None,
         out: args.out.join("replay"),
-        rrd: rrd.clone(),
+        rrd: Some(rrd.clone()),
+        view: Default::default(),
         export: vec![Export::Usd, Export::Obj, Export::C3d],
         enhance: args.enhance,
         frames: None,
@@ -121,7 +122,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         t.elapsed().as_secs_f64()
     );
     print_summary(&outcome.metrics, &outcome.outputs);
-    if let Some(rrd) = rrd.filter(|_| !args.no_viewer) {
+    if !args.no_viewer {
         match which("rerun") {
             Some(viewer) => {
                 println!("opening the viewer: {} {}", viewer.display(), rrd.display());
@@ -130,7 +131,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 }
             }
             None => println!(
-                "view it with `rerun {}` (pip install rerun-sdk for the viewer)",
+                "view it with `rerun {}` (`pip install rerun-sdk==0.36.3` gives the viewer)",
                 rrd.display()
             ),
         }

@@ -43,6 +43,12 @@ pub struct LiveArgs {
     /// Export format (repeatable): obj, ply, usd, c3d.
     #[arg(long, value_enum)]
     pub export: Vec<Export>,
+    /// Also save a rerun recording (.rrd) of the take (view it with `rerun FILE`).
+    #[arg(long, value_name = "FILE")]
+    pub rrd: Option<PathBuf>,
+    /// Rerun viewer and logging options.
+    #[command(flatten)]
+    pub view: super::view::ViewerArgs,
     /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
     #[arg(long)]
     pub enhance: bool,
@@ -196,7 +202,9 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
 
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let (sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
+    let (mut sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
+    args.view
+        .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
     outputs.push(out.join("live_stats.json"));
     let stats = Arc::new(Mutex::new(source.stats()));
     let limited = LimitedLive {

@@ -17,6 +17,7 @@ mod retime;
 mod rig;
 mod solve;
 mod synth;
+mod view;
 
 use std::path::{Path, PathBuf};
 

@@ -49,9 +49,12 @@ pub struct ReplayArgs {
     /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json, exports).
     #[arg(long, short, default_value = "out/replay")]
     pub out: PathBuf,
-    /// Also save a rerun recording (.rrd) of the take.
+    /// Also save a rerun recording (.rrd) of the take (view it with `rerun FILE`).
     #[arg(long, value_name = "FILE")]
     pub rrd: Option<PathBuf>,
+    /// Rerun viewer and logging options.
+    #[command(flatten)]
+    pub view: super::view::ViewerArgs,
     /// Export format (repeatable): obj, ply, usd, c3d.
     #[arg(long, value_enum)]
     pub export: Vec<Export>,
@@ -153,19 +156,6 @@ impl Sink for ProgressSink {
         self.bar.finish_and_clear();
         Ok(())
     }
-}
-
-/// Whether this binary can write rerun recordings (`--rrd`).
-pub fn rerun_available() -> bool {
-    false
-}
-
-/// The rerun sink for `--rrd`.
-fn rerun_sink(path: &Path) -> anyhow::Result<Box<dyn Sink>> {
-    bail!(
-        "--rrd {}: rerun support not built into this binary",
-        path.display()
-    )
 }
 
 /// Installs the Ctrl-C handler once per process; returns the stop flag it sets.
@@ -279,10 +269,8 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (mut sinks, mut outputs) = file_sinks(out, &args.export);
-    if let Some(rrd) = &args.rrd {
-        sinks.push(rerun_sink(rrd)?);
-        outputs.push(rrd.clone());
-    }
+    args.view
+        .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
     if !args.quiet {
         let bar = indicatif::ProgressBar::new(info.frames.len() as u64);
         bar.set_style(
