@@ -45,6 +45,18 @@ pub fn thread_cpu_seconds() -> Option<f64> {
     Some(ns * 1e-9)
 }
 
+/// CPU time (user + system, all threads) of this process so far, s, from
+/// `/proc/self/stat` (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start after the last ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
 /// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
 #[derive(Debug, Clone)]
 pub struct Rng(u64);
@@ -436,11 +448,19 @@ pub fn run_dataset_with(
     let mut rows = Vec::new();
     for &method in methods {
         let t0 = Instant::now();
+        let cpu0 = process_cpu_seconds();
         let mut solver = Solver::new(method, dataset, layout, params)
             .map_err(|e| format!("{name}: building {}: {e}", method.name()))?;
         let build_s = t0.elapsed().as_secs_f64();
+        let build_cpu = cpu0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
         if let Solver::Lgi(s) = &solver {
             eprintln!("{name}: {}", s.index().stats);
+        }
+        if let Some(cpu) = build_cpu {
+            eprintln!(
+                "{name}: {} built in {build_s:.2} s wall, {cpu:.2} s CPU over all threads",
+                method.name()
+            );
         }
         for take in takes {
             // LGI variants over the same index: temporal smoothing on the animated take, the
