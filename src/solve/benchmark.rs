@@ -763,3 +763,55 @@ pub fn run_benchmark(config: &BenchConfig) -> Result<Vec<Row>, String> {
 fn ict_data_present(manifest: &Path) -> bool {
     crate::dataset::manifest::Manifest::read(manifest).is_ok()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(cpu: Option<f64>) -> Row {
+        Row {
+            dataset: "d".into(),
+            condition: "exact".into(),
+            method: "lgi".into(),
+            mean_mm: 0.1234,
+            p95_mm: 0.5,
+            marker_mm: 0.0,
+            ms_per_frame: 12.345,
+            cpu_ms_per_frame: cpu,
+            build_s: 1.5,
+            accel_ratio: None,
+        }
+    }
+
+    #[test]
+    fn table_has_a_cpu_column_left_empty_when_unknown() {
+        let t = format_table(&[row(Some(6.789)), row(None)]);
+        let lines: Vec<&str> = t.lines().collect();
+        assert!(lines[0].contains("| ms/frame | cpu ms/frame | build s |"));
+        assert_eq!(lines[0].matches('|').count(), lines[1].matches('|').count());
+        assert_eq!(
+            lines[2],
+            "| d | exact | lgi | 0.123 | 0.500 | 0.000 | 12.35 | 6.79 | 1.50 |  |"
+        );
+        assert_eq!(
+            lines[3],
+            "| d | exact | lgi | 0.123 | 0.500 | 0.000 | 12.35 |  | 1.50 |  |"
+        );
+    }
+
+    #[test]
+    fn thread_cpu_time_grows_with_work() {
+        let Some(a) = thread_cpu_seconds() else {
+            eprintln!("skipped: no /proc/thread-self/schedstat");
+            return;
+        };
+        let mut x = 0u64;
+        let t = Instant::now();
+        while t.elapsed().as_millis() < 50 {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        }
+        let b = thread_cpu_seconds().unwrap_or(a);
+        assert!(b > a, "thread CPU time did not grow: {a} -> {b}");
+        assert!(b - a < 10.0, "implausible thread CPU time: {a} -> {b}");
+    }
+}
