@@ -43,20 +43,12 @@ impl SpdFactor {
     }
 
     /// Solves `A X = B` for the three coordinate columns of `rhs` (#N), in place.
-    ///
-    /// The back-substitution of a sparse factor is sequential within a column, so the
-    /// columns are split over two threads (x and y together, z alone): each column's
-    /// arithmetic is the same as in one three-column solve, so is the result.
     pub(crate) fn solve3(&self, rhs: &mut [Vector3<f64>]) {
         debug_assert_eq!(rhs.len(), self.n);
-        let mut xy = Mat::<f64>::from_fn(self.n, 2, |i, c| rhs[i][c]);
-        let mut z = Mat::<f64>::from_fn(self.n, 1, |i, _| rhs[i][2]);
-        rayon::join(
-            || self.llt.solve_in_place(xy.as_mut()),
-            || self.llt.solve_in_place(z.as_mut()),
-        );
+        let mut b = Mat::<f64>::from_fn(self.n, 3, |i, c| rhs[i][c]);
+        self.llt.solve_in_place(b.as_mut());
         for (i, r) in rhs.iter_mut().enumerate() {
-            *r = Vector3::new(xy[(i, 0)], xy[(i, 1)], z[(i, 0)]);
+            *r = Vector3::new(b[(i, 0)], b[(i, 1)], b[(i, 2)]);
         }
     }
 }
