@@ -10,9 +10,11 @@ pub mod csv;
 pub mod mesh;
 pub mod staged_file;
 pub mod usd;
+pub mod usd_read;
 
 pub use c3d::C3dSink;
 pub use csv::{CsvSink, MetricsSink};
 pub use mesh::{MeshFormat, MeshSequenceSink};
 pub use staged_file::StagedFile;
 pub use usd::UsdSink;
+pub use usd_read::{UsdMeshSequence, UsdReadError, read_usda_sequence};
