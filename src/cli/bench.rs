@@ -336,7 +336,7 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
 
 /// CPU time (user + system, all threads) of this process so far, from /proc/self/stat
 /// (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
-fn process_cpu_seconds() -> Option<f64> {
+pub(super) fn process_cpu_seconds() -> Option<f64> {
     let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
     // Fields after the command name (which may contain spaces) start after the last ')'.
     let rest = &stat[stat.rfind(')')? + 1..];

@@ -10,7 +10,9 @@ use helmcap::capture::{Replay, ReplayParams, StereoFrame};
 use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::synth::{AnimationParams, Performer, SynthParams, animation, default_rig};
-use helmcap::track::{DetectParams, Detection, LabelParams, Labeler, detect_markers};
+use helmcap::track::{
+    DetectParams, Detection, LabelParams, Labeler, MarkerDetector, detect_markers,
+};
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
 
 /// Arguments of `helmcap bench capture`.
@@ -95,26 +97,36 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     // Throughput: detection in predicted ROIs (both cameras in parallel) + labeling and
     // triangulation.
     let mut rates = Vec::new();
+    let mut cpu_ms = Vec::new();
     let mut labeled = 0;
+    let load_before = load_average();
     for _ in 0..args.runs.max(1) {
         let mut labeler = new_labeler()?;
+        let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
+        let cpu = super::bench::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
         for f in &frames {
             let rois = labeler.predicted_rois();
-            let detect = |c: usize| {
-                let p = DetectParams {
-                    roi: rois[c],
-                    ..DetectParams::default()
-                };
-                detect_markers(&f.images[c], &p)
-            };
-            let (a, b) = rayon::join(|| detect(0), || detect(1));
+            let params = rois.map(|roi| DetectParams {
+                roi,
+                ..DetectParams::default()
+            });
+            let [d0, d1] = &mut detectors;
+            let (a, b) = rayon::join(
+                || d0.detect(&f.images[0], &params[0]),
+                || d1.detect(&f.images[1], &params[1]),
+            );
             labeled += labeler.process(f.index, [&a, &b]).stats.labeled;
         }
         rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
+        if let (Some(a), Some(b)) = (cpu, super::bench::process_cpu_seconds()) {
+            cpu_ms.push(1e3 * (b - a) / frames.len() as f64);
+        }
     }
+    let load_after = load_average();
     rates.sort_by(f64::total_cmp);
+    cpu_ms.sort_by(f64::total_cmp);
     let (w, h) = (rig.cam0.width_px, rig.cam0.height_px);
     println!(
         "capture {w}×{h}, {} stereo frames, median of {} runs: {:.0} stereo frames/s \
@@ -126,6 +138,14 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         rates[rates.len() - 1],
         labeled as f64 / frames.len() as f64
     );
+    if let Some(m) = cpu_ms.get(cpu_ms.len() / 2) {
+        println!(
+            "CPU time (all threads) per stereo frame: median {m:.2} ms; 1-minute load average \
+             {} before, {} after",
+            load_before.as_deref().unwrap_or("?"),
+            load_after.as_deref().unwrap_or("?")
+        );
+    }
 
     // Accuracy against ground truth at added centroid noise.
     let projections = read_projections(&session, &layout)?;
@@ -202,6 +222,12 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         let _ = std::fs::remove_dir_all(&session);
     }
     Ok(())
+}
+
+/// The 1-minute load average from /proc/loadavg (Linux); `None` elsewhere.
+fn load_average() -> Option<String> {
+    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
+    text.split_whitespace().next().map(str::to_owned)
 }
 
 /// The marker whose true projection is nearest `px`, within 4 px.

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use helmcap::dataset::Dataset;
 use helmcap::dataset::actor::Actor;
-use helmcap::enhance::{EnhanceParams, Enhancer, VoluntaryRegions};
+use helmcap::enhance::{EnhanceParams, EnhanceTimings, Enhancer, VoluntaryRegions};
 use helmcap::mesh::{read_obj_positions, write_obj_positions};
+use helmcap::sink::read_usda_sequence;
 
 use super::{DatasetArgs, builtin_params};
 
@@ -18,11 +19,14 @@ pub struct EnhanceArgs {
     /// `builtin[:SEED]` for the built-in actor.
     #[arg(long, value_name = "MANIFEST")]
     pub database: String,
-    /// Folder of OBJ frames in the database topology (e.g. the output of `helmcap solve`),
-    /// processed in file-name order.
-    #[arg(long, value_name = "DIR")]
+    /// Frames in the database topology: a folder of OBJ files (e.g. the output of
+    /// `helmcap solve`), processed in file-name order, or a `mesh.usda` written by
+    /// `helmcap replay --export usd` (one mesh, time-sampled points), processed in
+    /// time-sample order.
+    #[arg(long, value_name = "DIR_OR_USDA")]
     pub input: PathBuf,
-    /// Output folder; each frame is written under its input file name.
+    /// Output folder; each frame is written under its input file name (OBJ input) or as
+    /// `frame_NNNNNN.obj`, NNNNNN the time code (USD input).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// Enhancement parameters (TOML, fields of `EnhanceParams`; missing fields keep their
@@ -92,30 +96,102 @@ pub fn obj_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     Ok(files)
 }
 
+/// Where `helmcap enhance` takes its frames from.
+enum Input {
+    /// OBJ files, in name order.
+    Objs(Vec<PathBuf>),
+    /// The time samples of a `mesh.usda`: output file name and positions.
+    Usd(Vec<(String, Vec<nalgebra::Point3<f64>>)>),
+}
+
+impl Input {
+    /// A folder of OBJ files, or a `.usda` file.
+    fn open(path: &Path) -> anyhow::Result<Self> {
+        if path.is_dir() {
+            return Ok(Self::Objs(obj_files(path)?));
+        }
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("usda" | "usd") => {
+                let seq = read_usda_sequence(path)?;
+                let frames = seq
+                    .frames
+                    .into_iter()
+                    .map(|(time, p)| (format!("frame_{:06}.obj", time.round() as i64), p))
+                    .collect();
+                Ok(Self::Usd(frames))
+            }
+            _ if !path.exists() => bail!("{}: no such folder or file", path.display()),
+            _ => bail!(
+                "{}: --input takes a folder of OBJ files or a .usda file",
+                path.display()
+            ),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Self::Objs(f) => f.len(),
+            Self::Usd(f) => f.len(),
+        }
+    }
+}
+
 /// Runs `helmcap enhance`.
 pub fn run(args: EnhanceArgs) -> anyhow::Result<()> {
     let params = read_params(args.params.as_deref())?;
-    let files = obj_files(&args.input)?;
+    let input = Input::open(&args.input)?;
     let (dataset, enhancer) = build_enhancer(&args.database, &params)?;
+    if let Input::Usd(frames) = &input {
+        let expected = dataset.vertex_count();
+        if let Some((name, p)) = frames.first()
+            && p.len() != expected
+        {
+            bail!(
+                "{}: {} has {} points but the database {} has {expected} vertices",
+                args.input.display(),
+                name,
+                p.len(),
+                dataset.name
+            );
+        }
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let bar = indicatif::ProgressBar::new(files.len() as u64);
-    for file in &files {
-        let positions =
-            read_obj_positions(file).with_context(|| format!("reading {}", file.display()))?;
+    let count = input.len();
+    let bar = indicatif::ProgressBar::new(count as u64);
+    let enhance_one = |label: &str, name: &std::ffi::OsStr, positions: &[nalgebra::Point3<f64>]| {
         let enhanced = enhancer
-            .enhance(&positions)
-            .with_context(|| format!("enhancing {}", file.display()))?;
-        let name = file.file_name().context("input file without a name")?;
+            .enhance(positions)
+            .with_context(|| format!("enhancing {label}"))?;
         let out = args.out.join(name);
         write_obj_positions(&out, &dataset.neutral, &enhanced)
             .with_context(|| format!("writing {}", out.display()))?;
         bar.inc(1);
+        anyhow::Ok(())
+    };
+    match &input {
+        Input::Objs(files) => {
+            for file in files {
+                let positions = read_obj_positions(file)
+                    .with_context(|| format!("reading {}", file.display()))?;
+                let name = file.file_name().context("input file without a name")?;
+                enhance_one(&file.display().to_string(), name, &positions)?;
+            }
+        }
+        Input::Usd(frames) => {
+            for (name, positions) in frames {
+                let label = format!("{} ({name})", args.input.display());
+                enhance_one(&label, std::ffi::OsStr::new(name), positions)?;
+            }
+        }
     }
     bar.finish_and_clear();
     println!(
         "enhanced {} frames against {} ({} database frames) into {}",
-        files.len(),
+        count,
         dataset.name,
         enhancer.frame_count(),
         args.out.display()
@@ -173,16 +249,37 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
     let inputs: Vec<_> = std::iter::once(&dataset.neutral.positions)
         .chain(dataset.shapes.iter().map(|s| &s.positions))
         .collect();
+    let cpu_before = process_cpu_secs();
+    let timed_start = std::time::Instant::now();
     let mut times = Vec::with_capacity(args.frames.max(1));
+    let mut steps = Vec::with_capacity(args.frames.max(1));
+    let mut selected = Vec::with_capacity(args.frames.max(1));
     for i in 0..args.frames.max(1) {
         let input = inputs[i % inputs.len()];
+        let mut step = EnhanceTimings::default();
         let t = std::time::Instant::now();
-        let out = enhancer.enhance(input)?;
+        let out = enhancer.enhance_timed(input, &mut step)?;
         times.push(t.elapsed().as_secs_f64());
+        steps.push(step);
+        selected.push(
+            (0..enhancer.frame_count())
+                .filter(|&k| out.region_weights.iter().any(|w| w[k] > 1e-9))
+                .count(),
+        );
         std::hint::black_box(out);
     }
+    let timed_wall = timed_start.elapsed().as_secs_f64();
+    let cpu = match (cpu_before, process_cpu_secs()) {
+        (Some(a), Some(b)) => Some(b - a),
+        _ => None,
+    };
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
+    let step_median = |f: fn(&EnhanceTimings) -> f64| {
+        let mut v: Vec<f64> = steps.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2] * 1e3
+    };
     println!(
         "enhance {}: {} vertices, {} triangles, {} database frames, {} patches",
         dataset.name,
@@ -190,6 +287,10 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         dataset.neutral.triangles.len(),
         enhancer.frame_count(),
         enhancer.patch_count()
+    );
+    println!(
+        "  triangles with details that vary between database frames: {}",
+        enhancer.varying_triangle_count()
     );
     println!("  load + precompute   {:8.2} s", load_and_precompute);
     println!(
@@ -209,7 +310,43 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         median * 1e3,
         1.0 / median
     );
+    if let Some(cpu) = cpu {
+        let frames = times.len() as f64;
+        println!(
+            "  CPU per frame (user + system / frames) {:.1} ms, {:.2} cores busy on average",
+            cpu / frames * 1e3,
+            cpu / timed_wall
+        );
+    }
+    selected.sort_unstable();
+    println!(
+        "  database frames selected by some region (median) {}",
+        selected[selected.len() / 2]
+    );
+    println!(
+        "  steps (median, ms)  low-pass {:.1}, encode {:.1}, matching {:.1}, blend {:.1}, \
+         reconstruct {:.1}, finish {:.1}",
+        step_median(|s| s.low_pass_input),
+        step_median(|s| s.encode),
+        step_median(|s| s.matching),
+        step_median(|s| s.blend),
+        step_median(|s| s.reconstruct),
+        step_median(|s| s.finish),
+    );
     Ok(())
+}
+
+/// User plus system CPU time of the whole process so far, seconds, where the platform
+/// reports it (`/proc/self/stat`, clock ticks of 1/100 s, the Linux default `USER_HZ`).
+fn process_cpu_secs() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses and may hold spaces).
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
+    let utime: f64 = fields.get(11)?.parse().ok()?;
+    let stime: f64 = fields.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
 }
 
 /// The process's resident set size in KiB, where the platform reports it.

@@ -99,6 +99,36 @@ pub struct Enhanced {
     pub region_weights: [DVector<f64>; 4],
 }
 
+/// Wall time of each per-frame step of [`Enhancer::enhance_timed`], seconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct EnhanceTimings {
+    /// §5.1: the low-pass f(a) of the input (one back-substitution).
+    pub low_pass_input: f64,
+    /// §5.2: Horn alignment to f(d₀), low-frequency gradients, the compressed code ã.
+    pub encode: f64,
+    /// §5.3: the four convex QPs (Eq. 3).
+    pub matching: f64,
+    /// §5.4: blending the details (Eq. 4) and composing them with the input's gradients.
+    pub blend: f64,
+    /// §5.5: the Poisson right-hand side and back-substitution.
+    pub reconstruct: f64,
+    /// Rigid placement onto the input and, when kept, the input's low band (one more
+    /// back-substitution).
+    pub finish: f64,
+}
+
+impl EnhanceTimings {
+    /// The sum of the steps, seconds.
+    pub fn total(&self) -> f64 {
+        self.low_pass_input
+            + self.encode
+            + self.matching
+            + self.blend
+            + self.reconstruct
+            + self.finish
+    }
+}
+
 /// Detail enhancement against a precomputed database (Bermano et al. 2014 §4-5).
 ///
 /// [`Enhancer::new`] does, once: the low-pass f(d) of every database frame (the neutral and
@@ -155,8 +185,20 @@ pub struct Enhancer {
     row_weights: [DVector<f64>; 4],
     /// D̃ᵀ diag(ω_r) D̃ per region.
     grams: [DMatrix<f64>; 4],
-    /// d^h codes, triangle-major: [(t · #frames + k) · 9 + c].
+    /// d^h codes of the triangles whose details vary between database frames,
+    /// frame-major and component-major: [(k · 9 + c) · #varying + j], so that blending
+    /// reads only the frames the matching selected, as contiguous runs that the compiler
+    /// vectorizes.
     details: Vec<f32>,
+    /// Where each triangle's details are (#T).
+    detail_slots: Vec<DetailSlot>,
+    /// Number of triangles with varying details.
+    varying_count: usize,
+    /// The region blend weights of the triangles with varying details, in their order.
+    varying_blend: Vec<[f64; 4]>,
+    /// The one d^h code of each triangle whose details are the same (bit for bit, in
+    /// single precision) in every database frame: skin the shapes do not move.
+    shared_details: Vec<[f32; POLAR_CODE_LEN]>,
     qp_ridge: f64,
     keep_input_low_band: bool,
 }
@@ -262,6 +304,10 @@ impl Enhancer {
             row_weights: Default::default(),
             grams: Default::default(),
             details: Vec::new(),
+            detail_slots: Vec::new(),
+            varying_count: 0,
+            varying_blend: Vec::new(),
+            shared_details: Vec::new(),
             qp_ridge: params.qp_ridge,
             keep_input_low_band: params.keep_input_low_band,
         };
@@ -281,10 +327,10 @@ impl Enhancer {
                     encode_polar(&f).unwrap_or_else(identity_code)
                 })
                 .collect();
-            for (t, code) in codes.iter().enumerate() {
-                let base = (t * k_count + k) * POLAR_CODE_LEN;
-                for c in 0..POLAR_CODE_LEN {
-                    details[base + c] = code[c] as f32;
+            for c in 0..POLAR_CODE_LEN {
+                let row = &mut details[(k * POLAR_CODE_LEN + c) * t_count..][..t_count];
+                for (d, code) in row.iter_mut().zip(&codes) {
+                    *d = code[c] as f32;
                 }
             }
             // Low-frequency gradients relative to f(d₀), compressed (§4.2).
@@ -304,11 +350,23 @@ impl Enhancer {
             grams[r] = compressed.transpose() * weighted;
             row_weights[r] = w;
         }
+        let (details, detail_slots, varying_count, shared_details) =
+            split_shared_details(&details, t_count, k_count);
+        let varying_blend = detail_slots
+            .iter()
+            .zip(&partial.regions.blend)
+            .filter(|(slot, _)| matches!(slot, DetailSlot::Varying(_)))
+            .map(|(_, b)| *b)
+            .collect();
         Ok(Self {
             compressed,
             row_weights,
             grams,
             details,
+            detail_slots,
+            varying_count,
+            varying_blend,
+            shared_details,
             ..partial
         })
     }
@@ -328,10 +386,18 @@ impl Enhancer {
         self.patch_count
     }
 
+    /// Number of triangles whose details d^h differ between database frames (the others
+    /// have one detail shared by every frame, which any convex blend reproduces).
+    pub fn varying_triangle_count(&self) -> usize {
+        self.varying_count
+    }
+
     /// Approximate heap memory of the precomputed data, bytes (excluding the two sparse
     /// factorizations, whose size `faer` does not report).
     pub fn memory_bytes(&self) -> usize {
         self.details.len() * 4
+            + self.shared_details.len() * 4 * POLAR_CODE_LEN
+            + self.detail_slots.len() * std::mem::size_of::<DetailSlot>()
             + self.compressed.len() * 8
             + self.grams.iter().map(|g| g.len() * 8).sum::<usize>()
             + self.row_weights.iter().map(|w| w.len() * 8).sum::<usize>()
@@ -359,6 +425,19 @@ impl Enhancer {
     /// # Errors
     /// As [`Enhancer::enhance`].
     pub fn enhance_detailed(&self, positions: &[Point3<f64>]) -> Result<Enhanced, EnhanceError> {
+        self.enhance_timed(positions, &mut EnhanceTimings::default())
+    }
+
+    /// [`Enhancer::enhance_detailed`], also recording the wall time of each step in
+    /// `timings` (for benchmarks).
+    ///
+    /// # Errors
+    /// As [`Enhancer::enhance`].
+    pub fn enhance_timed(
+        &self,
+        positions: &[Point3<f64>],
+        timings: &mut EnhanceTimings,
+    ) -> Result<Enhanced, EnhanceError> {
         if positions.len() != self.vertex_count {
             return Err(EnhanceError::Shape {
                 what: "input frame vertices",
@@ -372,11 +451,19 @@ impl Enhancer {
         {
             return Err(EnhanceError::NonFinite("input frame".to_string()));
         }
+        let mut clock = std::time::Instant::now();
+        let mut lap = |slot: &mut f64| {
+            let now = std::time::Instant::now();
+            *slot = (now - clock).as_secs_f64();
+            clock = now;
+        };
         // §5.1 frequency separation, §5.2 alignment and encoding.
         let low = self.low_pass.apply(positions)?;
+        lap(&mut timings.low_pass_input);
         let (aligned, head_from_input) = self.align_to_smooth_neutral(&low)?;
         let low_grads = self.low_gradients(&aligned);
         let code = self.compressed_code(&low_grads);
+        lap(&mut timings.encode);
         // §5.3 matching, Eq. (3) per region.
         let k_count = self.frame_count();
         let mut region_weights: [DVector<f64>; 4] = Default::default();
@@ -389,32 +476,15 @@ impl Enhancer {
             *w = convex_weights(gram, &b, self.qp_ridge)
                 .ok_or_else(|| EnhanceError::NonFinite("matching system".to_string()))?;
         }
-        let support: Vec<usize> = (0..k_count)
-            .filter(|&k| region_weights.iter().any(|w| w[k] > 1e-9))
-            .collect();
+        lap(&mut timings.matching);
         // §5.4 interpolation, Eq. (4), and composition with the input's low frequencies.
-        let gradients: Vec<Matrix3<f64>> = (0..self.triangles.len())
-            .into_par_iter()
-            .map(|t| {
-                let blend = &self.regions.blend[t];
-                let mut code = [0.0; POLAR_CODE_LEN];
-                for &k in &support {
-                    let c: f64 = (0..4).map(|r| blend[r] * region_weights[r][k]).sum();
-                    if c == 0.0 {
-                        continue;
-                    }
-                    let base = (t * k_count + k) * POLAR_CODE_LEN;
-                    for (i, x) in code.iter_mut().enumerate() {
-                        *x += c * f64::from(self.details[base + i]);
-                    }
-                }
-                decode_polar(&code) * low_grads[t]
-            })
-            .collect();
+        let gradients = self.blend_details(&region_weights, &low_grads, k_count);
+        lap(&mut timings.blend);
         // §5.5 reconstruction and rigid placement.
         let input_aligned: Vec<Point3<f64>> =
             positions.iter().map(|p| head_from_input * p).collect();
         let rebuilt = self.poisson.solve(&gradients, &input_aligned)?;
+        lap(&mut timings.reconstruct);
         let back = horn_alignment(&rebuilt, positions, &self.face_weights)?;
         let mut out: Vec<Point3<f64>> = rebuilt.iter().map(|p| back * p).collect();
         if self.keep_input_low_band {
@@ -424,10 +494,85 @@ impl Enhancer {
                 *o = il + (*o - ol);
             }
         }
+        lap(&mut timings.finish);
         Ok(Enhanced {
             positions: out,
             region_weights,
         })
+    }
+
+    /// Eq. (4) and §5.4: per triangle, the blend of the database details d^h with the
+    /// region weights, decoded and composed with the input's low-frequency gradient.
+    ///
+    /// The triangles with varying details are split into chunks over the threads; each
+    /// chunk accumulates, frame by frame over the frames some region selected, contiguous
+    /// runs of the frame-major details (one per code component), so a frame nobody
+    /// selected costs nothing and the inner loops are plain vector multiply-adds. The
+    /// per-triangle sums run in database frame order, as in a triangle-by-triangle loop,
+    /// so the result does not depend on the chunking or the thread count. A triangle with
+    /// one shared detail d gets (Σ_k c_k) d, which is Σ_k c_k d up to rounding.
+    fn blend_details(
+        &self,
+        region_weights: &[DVector<f64>; 4],
+        low_grads: &[Matrix3<f64>],
+        k_count: usize,
+    ) -> Vec<Matrix3<f64>> {
+        /// Triangles per chunk: 10 rows of 512 f64 (40 KiB) stay in L1/L2.
+        const CHUNK: usize = 512;
+        let varying = self.varying_count;
+        let selected: Vec<(usize, [f64; 4])> = (0..k_count)
+            .filter(|&k| region_weights.iter().any(|w| w[k] > 1e-9))
+            .map(|k| (k, std::array::from_fn(|r| region_weights[r][k])))
+            .collect();
+        // Eq. (4): c_t,k = Σ_r ω̂_r,t w_r,k, the weight of frame k on triangle t.
+        let frame_weight =
+            |b: &[f64; 4], w: &[f64; 4]| -> f64 { (0..4).map(|r| b[r] * w[r]).sum() };
+        let mut blended = vec![[0.0_f64; POLAR_CODE_LEN]; varying];
+        blended
+            .par_chunks_mut(CHUNK)
+            .zip(self.varying_blend.par_chunks(CHUNK))
+            .enumerate()
+            .for_each(|(chunk, (out, blend))| {
+                let j0 = chunk * CHUNK;
+                let len = out.len();
+                let mut acc = [[0.0_f64; CHUNK]; POLAR_CODE_LEN];
+                let mut coef = [0.0_f64; CHUNK];
+                for (k, w) in &selected {
+                    for (c, b) in coef.iter_mut().zip(blend) {
+                        *c = frame_weight(b, w);
+                    }
+                    for (comp, a) in acc.iter_mut().enumerate() {
+                        let start = (k * POLAR_CODE_LEN + comp) * varying + j0;
+                        let run = &self.details[start..start + len];
+                        for ((x, &d), &c) in a[..len].iter_mut().zip(run).zip(&coef[..len]) {
+                            *x += c * f64::from(d);
+                        }
+                    }
+                }
+                for (j, code) in out.iter_mut().enumerate() {
+                    *code = std::array::from_fn(|c| acc[c][j]);
+                }
+            });
+        let mut gradients = vec![Matrix3::zeros(); self.triangles.len()];
+        gradients
+            .par_iter_mut()
+            .zip(low_grads.par_iter())
+            .zip(
+                self.detail_slots
+                    .par_iter()
+                    .zip(self.regions.blend.par_iter()),
+            )
+            .for_each(|((g, l), (slot, b))| {
+                let code = match *slot {
+                    DetailSlot::Varying(j) => blended[j as usize],
+                    DetailSlot::Shared(j) => {
+                        let total: f64 = selected.iter().map(|(_, w)| frame_weight(b, w)).sum();
+                        self.shared_details[j as usize].map(|d| total * f64::from(d))
+                    }
+                };
+                *g = decode_polar(&code) * l;
+            });
+        gradients
     }
 
     /// The compressed shape-space vector ã of a frame (§5.2): low-pass, Horn alignment to
@@ -493,6 +638,51 @@ impl Enhancer {
         }
         out
     }
+}
+
+/// Where a triangle's details d^h are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DetailSlot {
+    /// Index among the triangles whose details vary between frames.
+    Varying(u32),
+    /// Index into the details shared by every frame.
+    Shared(u32),
+}
+
+/// Splits the details (component-major over all triangles: [(k · 9 + c) · #T + t]) into
+/// the triangles whose codes differ between frames (returned in the same layout over
+/// those triangles only, with their count) and those with one code in every frame.
+fn split_shared_details(
+    all: &[f32],
+    t_count: usize,
+    k_count: usize,
+) -> (Vec<f32>, Vec<DetailSlot>, usize, Vec<[f32; POLAR_CODE_LEN]>) {
+    let at = |k: usize, c: usize, t: usize| all[(k * POLAR_CODE_LEN + c) * t_count + t];
+    let mut slots = Vec::with_capacity(t_count);
+    let mut varying_triangles = Vec::new();
+    let mut shared = Vec::new();
+    for t in 0..t_count {
+        let same = (1..k_count)
+            .all(|k| (0..POLAR_CODE_LEN).all(|c| at(k, c, t).to_bits() == at(0, c, t).to_bits()));
+        if same {
+            slots.push(DetailSlot::Shared(shared.len() as u32));
+            shared.push(std::array::from_fn(|c| at(0, c, t)));
+        } else {
+            slots.push(DetailSlot::Varying(varying_triangles.len() as u32));
+            varying_triangles.push(t);
+        }
+    }
+    let varying = varying_triangles.len();
+    let mut details = vec![0f32; varying * k_count * POLAR_CODE_LEN];
+    for k in 0..k_count {
+        for c in 0..POLAR_CODE_LEN {
+            let row = &mut details[(k * POLAR_CODE_LEN + c) * varying..][..varying];
+            for (d, &t) in row.iter_mut().zip(&varying_triangles) {
+                *d = at(k, c, t);
+            }
+        }
+    }
+    (details, slots, varying, shared)
 }
 
 /// The code of the identity gradient.

@@ -27,7 +27,7 @@ pub use deformation_gradient::{
     PolarCode, decode_polar, deformation_gradients, encode_polar, polar_decomposition,
     rest_frame_inverses, triangle_frame,
 };
-pub use enhancer::{EnhanceParams, Enhanced, Enhancer};
+pub use enhancer::{EnhanceParams, EnhanceTimings, Enhanced, Enhancer};
 pub use frequency::{LowPass, LowPassParams};
 pub use poisson::{PoissonParams, PoissonSolver};
 pub use qp::convex_weights;

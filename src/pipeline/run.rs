@@ -22,7 +22,7 @@ use crate::enhance::Enhancer;
 use crate::mesh::Mesh;
 use crate::solve::Solver;
 use crate::timecode::TimecodeRate;
-use crate::track::{DetectParams, LabelParams, Labeler, detect_markers};
+use crate::track::{DetectParams, LabelParams, Labeler, MarkerDetector};
 
 /// Everything a take needs besides its source and sinks.
 pub struct PipelineConfig {
@@ -276,12 +276,13 @@ pub fn run(
         {
             let errors = errors.clone();
             let mut labeler = labeler;
+            let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
             handles.push((
                 Stage::Track,
                 spawn(Stage::Track, move || {
                     for mut f in track_in {
                         let t = Instant::now();
-                        track_frame(&mut f, &mut labeler, &detect);
+                        track_frame(&mut f, &mut labeler, &mut detectors, &detect);
                         f.timings.set(Stage::Track, ms_since(t));
                         if to_stabilize.send(f).is_err() {
                             break;
@@ -497,7 +498,12 @@ fn source_stage(
 
 /// Detection in both cameras (in parallel, inside the labeler's predicted regions) and
 /// labeling.
-fn track_frame(f: &mut FrameResult, labeler: &mut Labeler, detect: &DetectParams) {
+fn track_frame(
+    f: &mut FrameResult,
+    labeler: &mut Labeler,
+    detectors: &mut [MarkerDetector; 2],
+    detect: &DetectParams,
+) {
     let rois = labeler.predicted_rois();
     let params = |c: usize| DetectParams {
         roi: rois[c].or(detect.roi),
@@ -505,9 +511,10 @@ fn track_frame(f: &mut FrameResult, labeler: &mut Labeler, detect: &DetectParams
     };
     let (p0, p1) = (params(0), params(1));
     let images = f.images.clone();
+    let [det0, det1] = detectors;
     let (d0, d1) = rayon::join(
-        || detect_markers(&images[0], &p0),
-        || detect_markers(&images[1], &p1),
+        || det0.detect(&images[0], &p0),
+        || det1.detect(&images[1], &p1),
     );
     let labeled = labeler.process(f.index, [&d0, &d1]);
     for (r, m) in f.markers.iter_mut().zip(&labeled.markers) {

@@ -13,6 +13,7 @@ pub mod mesh;
 pub mod rerun;
 pub mod staged_file;
 pub mod usd;
+pub mod usd_read;
 
 pub use c3d::C3dSink;
 pub use csv::{CsvSink, MetricsSink};
@@ -20,3 +21,4 @@ pub use mesh::{MeshFormat, MeshSequenceSink};
 pub use rerun::{RerunParams, RerunSink, RerunSinkError, RerunTarget};
 pub use staged_file::StagedFile;
 pub use usd::UsdSink;
+pub use usd_read::{UsdMeshSequence, UsdReadError, read_usda_sequence};

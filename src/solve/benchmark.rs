@@ -23,7 +23,9 @@
 //!
 //! # Metrics
 //! Mean and 95th-percentile vertex error over the face vertices, mean error at the present
-//! markers, mean time per frame (one thread), and the build time of each method.
+//! markers, wall and thread-CPU time per frame (one thread), and the build time of each
+//! method (wall time of building its solver from the loaded dataset: for LGI the whole
+//! index of §4–§5, on every core).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -34,6 +36,26 @@ use super::{Method, SolveParams, Solver};
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout, Shape};
 use crate::lgi::{LgiParams, TemporalParams};
+
+/// CPU time this thread has run so far, s, from `/proc/thread-self/schedstat` (Linux,
+/// nanoseconds); `None` elsewhere.
+pub fn thread_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = stat.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
+/// CPU time (user + system, all threads) of this process so far, s, from
+/// `/proc/self/stat` (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may contain spaces) start after the last ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let utime: f64 = f.get(11)?.parse().ok()?;
+    let stime: f64 = f.get(12)?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
 
 /// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
 #[derive(Debug, Clone)]
@@ -237,8 +259,12 @@ pub struct Row {
     pub p95_mm: f64,
     /// Mean error at the present markers, mm.
     pub marker_mm: f64,
-    /// Mean time per frame, ms.
+    /// Mean wall time per frame, ms.
     pub ms_per_frame: f64,
+    /// Mean CPU time per frame of the solving thread, ms (`None` where the platform does
+    /// not report it). Unlike the wall time it does not count time the thread waited for a
+    /// core, so it is the figure to compare on a loaded machine.
+    pub cpu_ms_per_frame: Option<f64>,
     /// Build (precomputation) time, s.
     pub build_s: f64,
     /// Animated sequences: mean vertex acceleration relative to the ground truth's.
@@ -248,12 +274,12 @@ pub struct Row {
 /// Formats rows as a Markdown table.
 pub fn format_table(rows: &[Row]) -> String {
     let mut s = String::from(
-        "| dataset | condition | method | mean mm | p95 mm | marker mm | ms/frame | build s | accel ratio |\n\
-         |---|---|---|---:|---:|---:|---:|---:|---:|\n",
+        "| dataset | condition | method | mean mm | p95 mm | marker mm | ms/frame | cpu ms/frame | build s | accel ratio |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for r in rows {
         s.push_str(&format!(
-            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {} |\n",
+            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} | {} | {:.2} | {} |\n",
             r.dataset,
             r.condition,
             r.method,
@@ -261,6 +287,7 @@ pub fn format_table(rows: &[Row]) -> String {
             r.p95_mm,
             r.marker_mm,
             r.ms_per_frame,
+            r.cpu_ms_per_frame.map_or("".into(), |c| format!("{c:.2}")),
             r.build_s,
             r.accel_ratio.map_or("".into(), |a| format!("{a:.2}"))
         ));
@@ -421,11 +448,19 @@ pub fn run_dataset_with(
     let mut rows = Vec::new();
     for &method in methods {
         let t0 = Instant::now();
+        let cpu0 = process_cpu_seconds();
         let mut solver = Solver::new(method, dataset, layout, params)
             .map_err(|e| format!("{name}: building {}: {e}", method.name()))?;
         let build_s = t0.elapsed().as_secs_f64();
+        let build_cpu = cpu0.zip(process_cpu_seconds()).map(|(a, b)| b - a);
         if let Solver::Lgi(s) = &solver {
             eprintln!("{name}: {}", s.index().stats);
+        }
+        if let Some(cpu) = build_cpu {
+            eprintln!(
+                "{name}: {} built in {build_s:.2} s wall, {cpu:.2} s CPU over all threads",
+                method.name()
+            );
         }
         for take in takes {
             // LGI variants over the same index: temporal smoothing on the animated take, the
@@ -450,10 +485,12 @@ pub fn run_dataset_with(
             }
             for (label, lgi_params) in variants {
                 let mut times = Vec::with_capacity(runs.max(1));
+                let mut cpu_times = Vec::with_capacity(runs.max(1));
                 let mut first: Option<Vec<Vec<Point3<f64>>>> = None;
                 for _ in 0..runs.max(1) {
                     solver.reset();
                     let t = Instant::now();
+                    let cpu0 = thread_cpu_seconds();
                     let solved: Vec<Vec<Point3<f64>>> = match (&mut solver, lgi_params) {
                         (Solver::Lgi(s), Some(p)) => {
                             let mut s2 = crate::lgi::LgiSolver::from_index(s.index().clone(), &p)
@@ -483,13 +520,19 @@ pub fn run_dataset_with(
                             out
                         }
                     };
-                    times.push(t.elapsed().as_secs_f64() * 1e3 / take.bundles.len().max(1) as f64);
+                    let frames = take.bundles.len().max(1) as f64;
+                    times.push(t.elapsed().as_secs_f64() * 1e3 / frames);
+                    if let (Some(a), Some(b)) = (cpu0, thread_cpu_seconds()) {
+                        cpu_times.push((b - a) * 1e3 / frames);
+                    }
                     if first.is_none() {
                         first = Some(solved);
                     }
                 }
                 times.sort_by(f64::total_cmp);
                 let ms = times[times.len() / 2];
+                cpu_times.sort_by(f64::total_cmp);
+                let cpu_ms = cpu_times.get(cpu_times.len() / 2).copied();
                 let solved = first.unwrap_or_default();
                 let mut all = Vec::new();
                 let mut marker = (0.0, 0usize);
@@ -515,6 +558,7 @@ pub fn run_dataset_with(
                     p95_mm: p95,
                     marker_mm: marker.0 / marker.1.max(1) as f64,
                     ms_per_frame: ms,
+                    cpu_ms_per_frame: cpu_ms,
                     build_s,
                     accel_ratio,
                 });
@@ -718,4 +762,56 @@ pub fn run_benchmark(config: &BenchConfig) -> Result<Vec<Row>, String> {
 /// Whether a manifest and its neutral mesh file are there.
 fn ict_data_present(manifest: &Path) -> bool {
     crate::dataset::manifest::Manifest::read(manifest).is_ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(cpu: Option<f64>) -> Row {
+        Row {
+            dataset: "d".into(),
+            condition: "exact".into(),
+            method: "lgi".into(),
+            mean_mm: 0.1234,
+            p95_mm: 0.5,
+            marker_mm: 0.0,
+            ms_per_frame: 12.345,
+            cpu_ms_per_frame: cpu,
+            build_s: 1.5,
+            accel_ratio: None,
+        }
+    }
+
+    #[test]
+    fn table_has_a_cpu_column_left_empty_when_unknown() {
+        let t = format_table(&[row(Some(6.789)), row(None)]);
+        let lines: Vec<&str> = t.lines().collect();
+        assert!(lines[0].contains("| ms/frame | cpu ms/frame | build s |"));
+        assert_eq!(lines[0].matches('|').count(), lines[1].matches('|').count());
+        assert_eq!(
+            lines[2],
+            "| d | exact | lgi | 0.123 | 0.500 | 0.000 | 12.35 | 6.79 | 1.50 |  |"
+        );
+        assert_eq!(
+            lines[3],
+            "| d | exact | lgi | 0.123 | 0.500 | 0.000 | 12.35 |  | 1.50 |  |"
+        );
+    }
+
+    #[test]
+    fn thread_cpu_time_grows_with_work() {
+        let Some(a) = thread_cpu_seconds() else {
+            eprintln!("skipped: no /proc/thread-self/schedstat");
+            return;
+        };
+        let mut x = 0u64;
+        let t = Instant::now();
+        while t.elapsed().as_millis() < 50 {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        }
+        let b = thread_cpu_seconds().unwrap_or(a);
+        assert!(b > a, "thread CPU time did not grow: {a} -> {b}");
+        assert!(b - a < 10.0, "implausible thread CPU time: {a} -> {b}");
+    }
 }

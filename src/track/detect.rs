@@ -97,116 +97,244 @@ pub struct Detection {
     pub quality: f64,
 }
 
-/// Finds the dots in `image` (see the module docs).
+/// Finds the dots in `image` (see the module docs). Allocates its working buffers on
+/// every call: a loop over frames should keep a [`MarkerDetector`] instead.
 pub fn detect_markers(image: &GrayImage, params: &DetectParams) -> Vec<Detection> {
-    let (w, h) = (image.width as usize, image.height as usize);
-    if w == 0 || h == 0 || image.data.len() != w * h {
-        return Vec::new();
+    MarkerDetector::default().detect(image, params)
+}
+
+/// Marker detection with working buffers kept from call to call (one per camera, or per
+/// thread): the entry type of this stage. [`MarkerDetector::detect`] gives exactly what
+/// [`detect_markers`] gives.
+#[derive(Debug, Default, Clone)]
+pub struct MarkerDetector {
+    /// Local contrast of candidate pixels over the ROI (0: not a candidate).
+    mask: Vec<u8>,
+    /// Whether a row of `mask` has a candidate.
+    row_has_candidate: Vec<bool>,
+    /// Column sums of the local-mean window (at most 201 rows × 255: fits in u16).
+    col: Vec<u16>,
+    /// Prefix sums of `col` along the row.
+    prefix: Vec<u32>,
+    /// Flood-fill stack.
+    stack: Vec<(usize, u8)>,
+    /// Pixels `(x, y, contrast)` of the current component.
+    pixels: Vec<(usize, usize, u8)>,
+}
+
+impl MarkerDetector {
+    /// A detector with empty buffers (they grow on the first call).
+    pub fn new() -> Self {
+        Self::default()
     }
-    let (x0, y0, x1, y1) = params.roi.map_or((0, 0, w, h), |(a, b, c, d)| {
-        (
-            a as usize,
-            b as usize,
-            (c as usize).min(w),
-            (d as usize).min(h),
-        )
-    });
-    if x0 >= x1 || y0 >= y1 {
-        return Vec::new();
-    }
-    let r = params.window_radius_px as usize;
-    // Box sums over the ROI grown by r (clamped): column sums over the window's rows, kept
-    // incrementally from row to row, and a prefix sum of them along each row.
-    let gx0 = x0.saturating_sub(r);
-    let gy0 = y0.saturating_sub(r);
-    let gx1 = (x1 + r).min(w);
-    let gy1 = (y1 + r).min(h);
-    let rw = gx1 - gx0;
-    let bw = x1 - x0;
-    let bh = y1 - y0;
-    let c = params.min_contrast_dn;
-    // Local contrast of candidate pixels (0: not a candidate), saturated at 255.
-    let mut mask = vec![0u8; bw * bh];
-    let mut col = vec![0u32; rw];
-    let mut prefix = vec![0u32; rw + 1];
-    let (mut ya_prev, mut yb_prev) = (gy0, gy0);
-    for y in y0..y1 {
-        let ya = y.saturating_sub(r).max(gy0);
-        let yb = (y + r + 1).min(gy1);
-        for yy in yb_prev..yb {
-            let row = &image.data[yy * w + gx0..yy * w + gx1];
-            col.iter_mut()
-                .zip(row)
-                .for_each(|(s, &v)| *s += u32::from(v));
+
+    /// Finds the dots in `image` (see the module docs).
+    pub fn detect(&mut self, image: &GrayImage, params: &DetectParams) -> Vec<Detection> {
+        let (w, h) = (image.width as usize, image.height as usize);
+        if w == 0 || h == 0 || image.data.len() != w * h {
+            return Vec::new();
         }
-        for yy in ya_prev..ya {
-            let row = &image.data[yy * w + gx0..yy * w + gx1];
-            col.iter_mut()
-                .zip(row)
-                .for_each(|(s, &v)| *s -= u32::from(v));
+        let (x0, y0, x1, y1) = params.roi.map_or((0, 0, w, h), |(a, b, c, d)| {
+            (
+                a as usize,
+                b as usize,
+                (c as usize).min(w),
+                (d as usize).min(h),
+            )
+        });
+        if x0 >= x1 || y0 >= y1 {
+            return Vec::new();
         }
-        (ya_prev, yb_prev) = (ya, yb);
-        let mut acc = 0u32;
-        for (p, &s) in prefix[1..].iter_mut().zip(&col) {
-            acc += s;
-            *p = acc;
-        }
-        let rows = (yb - ya) as u32;
-        let img_row = &image.data[y * w + x0..y * w + x1];
-        let mask_row = &mut mask[(y - y0) * bw..(y - y0 + 1) * bw];
-        for (k, (&v, m)) in img_row.iter().zip(mask_row.iter_mut()).enumerate() {
-            let x = x0 + k;
-            let xa = x.saturating_sub(r).max(gx0) - gx0;
-            let xb = (x + r + 1).min(gx1) - gx0;
-            let area = (xb - xa) as u32 * rows;
-            let sum = prefix[xb] - prefix[xa];
-            let v = u32::from(v) * area;
-            let diff = if params.bright {
-                v.checked_sub(sum)
-            } else {
-                sum.checked_sub(v)
-            };
-            *m = match diff {
-                Some(d) if d >= c * area => (d / area).clamp(1, 255) as u8,
-                _ => 0,
-            };
-        }
-    }
-    // Connected components (8-connectivity) by flood fill.
-    let mut out = Vec::new();
-    let mut stack = Vec::new();
-    let mut pixels: Vec<(usize, usize, u8)> = Vec::new();
-    for start in 0..mask.len() {
-        if mask[start] == 0 {
-            continue;
-        }
-        let level = mask[start];
-        mask[start] = 0;
-        stack.push((start, level));
-        pixels.clear();
-        while let Some((i, lv)) = stack.pop() {
-            let (x, y) = (i % bw, i / bw);
-            if pixels.len() < MAX_COMPONENT_PX {
-                pixels.push((x + x0, y + y0, lv));
-            }
-            for dy in -1i64..=1 {
-                for dx in -1i64..=1 {
-                    let nx = x as i64 + dx;
-                    let ny = y as i64 + dy;
-                    if nx < 0 || ny < 0 || nx >= bw as i64 || ny >= bh as i64 {
+        // The u16 column sums hold windows up to 257 rows.
+        let r = (params.window_radius_px as usize).min(128);
+        let (bw, bh) = (x1 - x0, y1 - y0);
+        self.threshold(image, params, r, (x0, y0, x1, y1));
+        // Connected components (8-connectivity) by flood fill.
+        let mut out = Vec::new();
+        let c = params.min_contrast_dn;
+        let Self {
+            mask,
+            row_has_candidate,
+            stack,
+            pixels,
+            ..
+        } = self;
+        for (row, _) in row_has_candidate
+            .iter()
+            .enumerate()
+            .filter(|(_, has)| **has)
+        {
+            let (row_start, row_end) = (row * bw, (row + 1) * bw);
+            let mut chunk = row_start;
+            while chunk < row_end {
+                let chunk_end = (chunk + 8).min(row_end);
+                if all_zero(&mask[chunk..chunk_end]) {
+                    chunk = chunk_end;
+                    continue;
+                }
+                for start in chunk..chunk_end {
+                    if mask[start] == 0 {
                         continue;
                     }
-                    let j = ny as usize * bw + nx as usize;
-                    if mask[j] != 0 {
-                        stack.push((j, mask[j]));
-                        mask[j] = 0;
+                    let level = mask[start];
+                    mask[start] = 0;
+                    stack.push((start, level));
+                    pixels.clear();
+                    while let Some((i, lv)) = stack.pop() {
+                        let (x, y) = (i % bw, i / bw);
+                        if pixels.len() < MAX_COMPONENT_PX {
+                            pixels.push((x + x0, y + y0, lv));
+                        }
+                        let (nx0, nx1) = (x.saturating_sub(1), (x + 1).min(bw - 1));
+                        let (ny0, ny1) = (y.saturating_sub(1), (y + 1).min(bh - 1));
+                        for ny in ny0..=ny1 {
+                            for nx in nx0..=nx1 {
+                                let j = ny * bw + nx;
+                                if mask[j] != 0 {
+                                    stack.push((j, mask[j]));
+                                    mask[j] = 0;
+                                }
+                            }
+                        }
                     }
+                    split_and_measure(image, pixels, c, 0, params, &mut out);
                 }
+                chunk = chunk_end;
             }
         }
-        split_and_measure(image, &pixels, c, 0, params, &mut out);
+        out
     }
-    out
+
+    /// Fills `mask` (the ROI `(x0, y0, x1, y1)`, row-major) with the local contrast of
+    /// candidate pixels, saturated at 255, and `row_has_candidate`. Box sums over the ROI
+    /// grown by `r` (clamped to the image): column sums over the window's rows, kept
+    /// incrementally from row to row, and a prefix sum of them along each row. Away from
+    /// the image's edges the window has a fixed area `A` and a pixel is a candidate when
+    /// `S ≥ A·(I + c)` (dark) or `A·I ≥ S + A·c` (bright), a test the compiler vectorizes;
+    /// the contrast `⌊|S − A·I| / A⌋` is computed for candidates only.
+    fn threshold(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        r: usize,
+        (x0, y0, x1, y1): (usize, usize, usize, usize),
+    ) {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let gx0 = x0.saturating_sub(r);
+        let gy0 = y0.saturating_sub(r);
+        let gx1 = (x1 + r).min(w);
+        let gy1 = (y1 + r).min(h);
+        let rw = gx1 - gx0;
+        let (bw, bh) = (x1 - x0, y1 - y0);
+        let c = params.min_contrast_dn;
+        self.mask.clear();
+        self.mask.resize(bw * bh, 0);
+        self.row_has_candidate.clear();
+        self.row_has_candidate.resize(bh, false);
+        self.col.clear();
+        self.col.resize(rw, 0);
+        self.prefix.clear();
+        self.prefix.resize(rw + 1, 0);
+        // Interior columns: the window lies inside [gx0, gx1).
+        let ia = x0.max(gx0 + r).min(x1);
+        let ib = x1.min(gx1.saturating_sub(r)).max(ia);
+        let (mut ya_prev, mut yb_prev) = (gy0, gy0);
+        for y in y0..y1 {
+            let ya = y.saturating_sub(r).max(gy0);
+            let yb = (y + r + 1).min(gy1);
+            for yy in yb_prev..yb {
+                let row = &image.data[yy * w + gx0..yy * w + gx1];
+                self.col
+                    .iter_mut()
+                    .zip(row)
+                    .for_each(|(s, &v)| *s = s.wrapping_add(u16::from(v)));
+            }
+            for yy in ya_prev..ya {
+                let row = &image.data[yy * w + gx0..yy * w + gx1];
+                self.col
+                    .iter_mut()
+                    .zip(row)
+                    .for_each(|(s, &v)| *s = s.wrapping_sub(u16::from(v)));
+            }
+            (ya_prev, yb_prev) = (ya, yb);
+            let mut acc = 0u32;
+            for (p, &s) in self.prefix[1..].iter_mut().zip(&self.col) {
+                acc += u32::from(s);
+                *p = acc;
+            }
+            let prefix = &self.prefix;
+            let rows = (yb - ya) as u32;
+            let img_row = &image.data[y * w + x0..y * w + x1];
+            let mask_row = &mut self.mask[(y - y0) * bw..(y - y0 + 1) * bw];
+            // Contrast of pixel x (window clamped to [gx0, gx1)), 0 below the threshold.
+            let level = |x: usize, v: u8| -> u8 {
+                let xa = x.saturating_sub(r).max(gx0) - gx0;
+                let xb = (x + r + 1).min(gx1) - gx0;
+                let area = (xb - xa) as u32 * rows;
+                let sum = prefix[xb] - prefix[xa];
+                let v = u32::from(v) * area;
+                let diff = if params.bright {
+                    v.checked_sub(sum)
+                } else {
+                    sum.checked_sub(v)
+                };
+                match diff {
+                    Some(d) if d >= c * area => (d / area).clamp(1, 255) as u8,
+                    _ => 0,
+                }
+            };
+            let mut any = 0u8;
+            for x in (x0..ia).chain(ib..x1) {
+                let m = level(x, img_row[x - x0]);
+                mask_row[x - x0] = m;
+                any |= m;
+            }
+            if ia < ib {
+                let n = ib - ia;
+                let area = (2 * r + 1) as u32 * rows;
+                let lo = &prefix[ia - r - gx0..ia - r - gx0 + n];
+                let hi = &prefix[ia + r + 1 - gx0..ia + r + 1 - gx0 + n];
+                let vals = &img_row[ia - x0..ib - x0];
+                let flags = &mut mask_row[ia - x0..ib - x0];
+                let mut hit = 0u8;
+                if params.bright {
+                    for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
+                        *f = u8::from(area * u32::from(v) >= s1 - s0 + area * c);
+                        hit |= *f;
+                    }
+                } else {
+                    for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
+                        *f = u8::from(s1 - s0 >= area * (u32::from(v) + c));
+                        hit |= *f;
+                    }
+                }
+                if hit != 0 {
+                    // Candidates are sparse: skip zero runs 8 pixels at a time.
+                    for k in (ia..ib).step_by(8) {
+                        let ke = (k + 8).min(ib);
+                        if all_zero(&mask_row[k - x0..ke - x0]) {
+                            continue;
+                        }
+                        for x in k..ke {
+                            if mask_row[x - x0] != 0 {
+                                mask_row[x - x0] = level(x, img_row[x - x0]);
+                            }
+                        }
+                    }
+                }
+                any |= hit;
+            }
+            self.row_has_candidate[y - y0] = any != 0;
+        }
+    }
+}
+
+/// Whether every byte of `bytes` is zero, tested as one word (false for more than 8 bytes).
+fn all_zero(bytes: &[u8]) -> bool {
+    let mut word = [0u8; 8];
+    let n = bytes.len().min(8);
+    word[..n].copy_from_slice(&bytes[..n]);
+    u64::from_ne_bytes(word) == 0 && bytes.len() <= 8
 }
 
 /// Largest component kept whole for splitting, pixels.
@@ -239,13 +367,12 @@ fn split_and_measure(
         return;
     }
     if pixels.len() <= params.max_area_px {
-        let xy: Vec<(usize, usize)> = pixels.iter().map(|&(x, y, _)| (x, y)).collect();
         let found = if depth == 0 {
-            measure_blob(image, &xy, params)
+            measure_blob(image, pixels, params)
         } else {
             // Parts of a split component: only clearly round dots of some size (the
             // fragments of a crease are small and thin).
-            measure_blob(image, &xy, params).filter(|d| {
+            measure_blob(image, pixels, params).filter(|d| {
                 d.roundness >= SPLIT_MIN_ROUNDNESS
                     && d.area_px >= SPLIT_MIN_AREA_FACTOR * params.min_area_px
                     && d.contrast_dn >= SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn
@@ -317,20 +444,20 @@ fn split_and_measure(
 /// Filters and measures one blob; `None` when it fails a filter.
 fn measure_blob(
     image: &GrayImage,
-    pixels: &[(usize, usize)],
+    pixels: &[(usize, usize, u8)],
     params: &DetectParams,
 ) -> Option<Detection> {
     let (w, h) = (image.width as usize, image.height as usize);
     let n = pixels.len() as f64;
     let (mut mx, mut my) = (0.0, 0.0);
-    for &(x, y) in pixels {
+    for &(x, y, _) in pixels {
         mx += x as f64;
         my += y as f64;
     }
     mx /= n;
     my /= n;
     let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
-    for &(x, y) in pixels {
+    for &(x, y, _) in pixels {
         let dx = x as f64 - mx;
         let dy = y as f64 - my;
         sxx += dx * dx;
@@ -350,11 +477,10 @@ fn measure_blob(
     if roundness < params.min_roundness {
         return None;
     }
-    let (bx0, by0, bx1, by1) = pixels
-        .iter()
-        .fold((usize::MAX, usize::MAX, 0, 0), |(a, b, c, d), &(x, y)| {
-            (a.min(x), b.min(y), c.max(x), d.max(y))
-        });
+    let (bx0, by0, bx1, by1) = pixels.iter().fold(
+        (usize::MAX, usize::MAX, 0, 0),
+        |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
+    );
     // Background ring: the border of the box grown by 3 pixels.
     let g = 3;
     let (rx0, ry0) = (bx0.saturating_sub(g), by0.saturating_sub(g));
@@ -375,7 +501,7 @@ fn measure_blob(
     let sign = if params.bright { -1.0 } else { 1.0 };
     let peak = pixels
         .iter()
-        .map(|&(x, y)| sign * (background - f64::from(image.data[y * w + x])))
+        .map(|&(x, y, _)| sign * (background - f64::from(image.data[y * w + x])))
         .fold(f64::MIN, f64::max);
     if peak < params.min_peak_contrast_dn {
         return None;
@@ -473,6 +599,87 @@ mod tests {
             ..Default::default()
         };
         assert!(detect_markers(&img, &params).is_empty());
+    }
+
+    /// The local contrast of every pixel by direct summation over its clamped window.
+    fn naive_mask(
+        image: &GrayImage,
+        params: &DetectParams,
+        roi: (usize, usize, usize, usize),
+    ) -> Vec<u8> {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let r = params.window_radius_px as usize;
+        let (x0, y0, x1, y1) = roi;
+        let (gx0, gy0) = (x0.saturating_sub(r), y0.saturating_sub(r));
+        let (gx1, gy1) = ((x1 + r).min(w), (y1 + r).min(h));
+        let mut out = Vec::new();
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let (xa, xb) = (x.saturating_sub(r).max(gx0), (x + r + 1).min(gx1));
+                let (ya, yb) = (y.saturating_sub(r).max(gy0), (y + r + 1).min(gy1));
+                let mut sum = 0u32;
+                for yy in ya..yb {
+                    for xx in xa..xb {
+                        sum += u32::from(image.data[yy * w + xx]);
+                    }
+                }
+                let area = ((xb - xa) * (yb - ya)) as u32;
+                let v = u32::from(image.data[y * w + x]) * area;
+                let d = if params.bright {
+                    v.checked_sub(sum)
+                } else {
+                    sum.checked_sub(v)
+                };
+                out.push(match d {
+                    Some(d) if d >= params.min_contrast_dn * area => (d / area).clamp(1, 255) as u8,
+                    _ => 0,
+                });
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn fast_threshold_equals_direct_summation() {
+        let mut img =
+            image_with_dots(&[(20.0, 10.0, 2.5), (190.0, 110.0, 3.0), (100.0, 60.0, 2.0)]);
+        // Texture, so that many pixels sit near the threshold.
+        let mut state = 12345u32;
+        for v in &mut img.data {
+            state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            *v = v.saturating_add(((state >> 16) % 13) as u8);
+        }
+        let mut detector = MarkerDetector::new();
+        for bright in [false, true] {
+            for (roi, r) in [
+                ((0, 0, 200, 120), 8),
+                ((3, 2, 197, 119), 5),
+                ((150, 90, 200, 120), 8),
+                ((0, 0, 7, 120), 8),
+                ((40, 30, 60, 45), 30),
+            ] {
+                let params = DetectParams {
+                    bright,
+                    window_radius_px: r,
+                    min_contrast_dn: 4,
+                    ..Default::default()
+                };
+                detector.threshold(&img, &params, r as usize, roi);
+                let naive = naive_mask(&img, &params, roi);
+                assert_eq!(detector.mask, naive, "bright {bright}, roi {roi:?}, r {r}");
+                assert!(naive.iter().any(|&m| m != 0));
+                let rows_with = naive
+                    .chunks(roi.2 - roi.0)
+                    .map(|row| row.iter().any(|&m| m != 0))
+                    .collect::<Vec<_>>();
+                assert_eq!(detector.row_has_candidate, rows_with);
+            }
+        }
+        // A reused detector gives what a fresh one gives.
+        let params = DetectParams::default();
+        let fresh = detect_markers(&img, &params);
+        assert_eq!(detector.detect(&img, &params), fresh);
+        assert!(!fresh.is_empty());
     }
 
     #[test]

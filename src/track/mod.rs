@@ -7,5 +7,5 @@
 pub mod detect;
 pub mod label;
 
-pub use detect::{DetectParams, Detection, detect_markers};
+pub use detect::{DetectParams, Detection, MarkerDetector, detect_markers};
 pub use label::{LabelError, LabelParams, LabelStats, LabeledFrame, LabeledMarker, Labeler};
