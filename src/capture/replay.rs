@@ -273,8 +273,14 @@ impl Replay {
         loop {
             let (index, ts, tc) = *self.info.frames.get(self.next)?;
             self.next += 1;
-            let result = self.load(index, &self.info.cameras[0]).and_then(|a| {
-                self.load(index, &self.info.cameras[1]).and_then(|b| {
+            // The two images decode side by side: PNG decoding is a large part of a frame's
+            // cost, and the replay source is one stage thread.
+            let (first, second) = rayon::join(
+                || self.load(index, &self.info.cameras[0]),
+                || self.load(index, &self.info.cameras[1]),
+            );
+            let result = first.and_then(|a| {
+                second.and_then(|b| {
                     if (a.width, a.height) != (b.width, b.height) {
                         Err(CaptureError::Size {
                             frame: index,
