@@ -3,6 +3,8 @@
 //! timings, on the frame and timecode timelines, and stays readable when a take stops
 //! early. Also checked with `rerun rrd verify` when the `rerun` command is installed.
 
+#![allow(clippy::unwrap_used)]
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::BufReader;
 use std::path::{Path, PathBuf};

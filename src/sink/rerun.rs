@@ -498,7 +498,8 @@ impl RerunSink {
         }
 
         // Camera images and labeled 2D markers.
-        let log_images = params.image_every > 0 && frame % params.image_every as usize == 0;
+        let log_images =
+            params.image_every > 0 && frame.is_multiple_of(params.image_every as usize);
         let scale = params.image_downscale;
         for cam in 0..2 {
             if log_images && let Some(image) = f.images[cam] {
@@ -1386,13 +1387,18 @@ mod tests {
 
     #[test]
     fn unreachable_directory_is_a_start_error() {
+        // The parent "folder" is a regular file: no folder can be made there, not even by
+        // root.
+        let dir = tempfile::tempdir().expect("tempdir");
+        let blocker = dir.path().join("not-a-folder");
+        std::fs::write(&blocker, b"x").expect("write");
         let err = RerunSink::new(
-            RerunTarget::File(PathBuf::from("/nonexistent-dir-helmcap/x.rrd")),
+            RerunTarget::File(blocker.join("x.rrd")),
             RerunParams::default(),
         )
         .expect_err("no such folder");
         assert!(matches!(err, RerunSinkError::Start { .. }), "{err}");
-        assert!(err.to_string().contains("nonexistent-dir-helmcap"), "{err}");
+        assert!(err.to_string().contains("not-a-folder"), "{err}");
     }
 
     #[test]
