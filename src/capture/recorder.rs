@@ -479,6 +479,9 @@ fn encode_png(image: &GrayImage) -> Result<Vec<u8>, String> {
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
+    // The "up" filter for every row: replay decodes it several times faster than the
+    // adaptive choice (mostly Paeth on camera noise), for files a few percent larger.
+    enc.set_filter(png::Filter::Up);
     let mut w = enc.write_header().map_err(|e| e.to_string())?;
     w.write_image_data(&image.data).map_err(|e| e.to_string())?;
     w.finish().map_err(|e| e.to_string())?;

@@ -501,6 +501,9 @@ pub fn write_png_gray(
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
+    // The "up" filter for every row: replay decodes it several times faster than the
+    // adaptive choice (mostly Paeth on camera noise), for files a few percent larger.
+    enc.set_filter(png::Filter::Up);
     let mut writer = enc.write_header().map_err(|e| err(e.to_string()))?;
     writer
         .write_image_data(pixels)
