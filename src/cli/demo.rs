@@ -104,7 +104,12 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         markers: None,
         out: args.out.join("replay"),
         rrd: Some(rrd.clone()),
-        view: Default::default(),
+        // Half-size images keep the recording near 60 MB for 120 frames (240 MB at full
+        // size); the markers are drawn at full precision either way.
+        view: super::view::ViewerArgs {
+            rerun_image_downscale: 2,
+            ..Default::default()
+        },
         export: vec![Export::Usd, Export::Obj, Export::C3d],
         enhance: args.enhance,
         frames: None,
@@ -123,7 +128,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     );
     print_summary(&outcome.metrics, &outcome.outputs);
     if !args.no_viewer {
-        match which("rerun") {
+        // A viewer needs a screen: on a headless machine only say how to open the file.
+        let has_display = ["DISPLAY", "WAYLAND_DISPLAY"]
+            .iter()
+            .any(|v| std::env::var_os(v).is_some_and(|d| !d.is_empty()));
+        match which("rerun").or_else(setup_viewer).filter(|_| has_display) {
             Some(viewer) => {
                 println!("opening the viewer: {} {}", viewer.display(), rrd.display());
                 if let Err(e) = std::process::Command::new(viewer).arg(&rrd).spawn() {
@@ -131,12 +140,24 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 }
             }
             None => println!(
-                "view it with `rerun {}` (`pip install rerun-sdk==0.36.3` gives the viewer)",
+                "view it with `rerun {}` on a machine with a screen (`scripts/setup.sh` puts \
+                 the viewer in ~/.cache/helmcap-python/bin; or `pip install rerun-sdk==0.36.3`)",
                 rrd.display()
             ),
         }
     }
     Ok(())
+}
+
+/// The viewer `scripts/setup.sh` installs (`~/.cache/helmcap-python/bin/rerun`, or under
+/// `$HELMCAP_PYTHON_ENV`), if it is there.
+fn setup_viewer() -> Option<PathBuf> {
+    let env = std::env::var_os("HELMCAP_PYTHON_ENV")
+        .map(PathBuf::from)
+        .or_else(|| {
+            std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/helmcap-python"))
+        })?;
+    Some(env.join("bin/rerun")).filter(|p| p.is_file())
 }
 
 /// The first `name` on PATH.
