@@ -32,8 +32,10 @@ impl GrayImage {
 /// # Errors
 /// The decoder's or the file system's message.
 pub fn read_png_gray(path: &Path) -> Result<GrayImage, String> {
-    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
-    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    // One read of the whole file (a camera frame is a few hundred kB) costs less than the
+    // many small reads of a buffered stream.
+    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes.as_slice()));
     decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
     let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
     let size = reader
