@@ -286,11 +286,11 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
     let mut times = Vec::new();
     let mut parts = Vec::new();
     let mut cpu = Vec::new();
-    let mut cpu_before = process_cpu_seconds();
+    let mut cpu_before = helmcap::solve::benchmark::process_cpu_seconds();
     let rig = builder.build(&examples, &[], &mut |r| {
         times.push(r.seconds);
         parts.push(r.step_seconds);
-        let now = process_cpu_seconds();
+        let now = helmcap::solve::benchmark::process_cpu_seconds();
         if let (Some(a), Some(b)) = (cpu_before, now) {
             cpu.push(b - a);
         }
@@ -332,16 +332,4 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
         times.len()
     );
     Ok(())
-}
-
-/// CPU time (user + system, all threads) of this process so far, from /proc/self/stat
-/// (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
-pub(super) fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may contain spaces) start after the last ')'.
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = f.get(11)?.parse().ok()?;
-    let stime: f64 = f.get(12)?.parse().ok()?;
-    Some((utime + stime) / 100.0)
 }

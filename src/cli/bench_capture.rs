@@ -103,7 +103,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     for _ in 0..args.runs.max(1) {
         let mut labeler = new_labeler()?;
         let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
-        let cpu = super::bench::process_cpu_seconds();
+        let cpu = helmcap::solve::benchmark::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
         for f in &frames {
@@ -120,7 +120,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
             labeled += labeler.process(f.index, [&a, &b]).stats.labeled;
         }
         rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
-        if let (Some(a), Some(b)) = (cpu, super::bench::process_cpu_seconds()) {
+        if let (Some(a), Some(b)) = (cpu, helmcap::solve::benchmark::process_cpu_seconds()) {
             cpu_ms.push(1e3 * (b - a) / frames.len() as f64);
         }
     }

@@ -249,7 +249,7 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
     let inputs: Vec<_> = std::iter::once(&dataset.neutral.positions)
         .chain(dataset.shapes.iter().map(|s| &s.positions))
         .collect();
-    let cpu_before = process_cpu_secs();
+    let cpu_before = helmcap::solve::benchmark::process_cpu_seconds();
     let timed_start = std::time::Instant::now();
     let mut times = Vec::with_capacity(args.frames.max(1));
     let mut steps = Vec::with_capacity(args.frames.max(1));
@@ -269,7 +269,7 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         std::hint::black_box(out);
     }
     let timed_wall = timed_start.elapsed().as_secs_f64();
-    let cpu = match (cpu_before, process_cpu_secs()) {
+    let cpu = match (cpu_before, helmcap::solve::benchmark::process_cpu_seconds()) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
@@ -334,19 +334,6 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         step_median(|s| s.finish),
     );
     Ok(())
-}
-
-/// User plus system CPU time of the whole process so far, seconds, where the platform
-/// reports it (`/proc/self/stat`, clock ticks of 1/100 s, the Linux default `USER_HZ`).
-fn process_cpu_secs() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which is in parentheses and may hold spaces).
-    let rest = &stat[stat.rfind(')')? + 2..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the name.
-    let utime: f64 = fields.get(11)?.parse().ok()?;
-    let stime: f64 = fields.get(12)?.parse().ok()?;
-    Some((utime + stime) / 100.0)
 }
 
 /// The process's resident set size in KiB, where the platform reports it.

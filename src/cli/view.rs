@@ -155,19 +155,6 @@ pub struct RerunBenchArgs {
     no_normals: bool,
 }
 
-/// Process CPU time (all threads) in seconds, from /proc/self/stat; `None` elsewhere.
-fn process_cpu_secs() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may hold spaces) start after the last ')'.
-    let rest = stat.rsplit_once(')')?.1;
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
-    let utime: f64 = fields.get(11)?.parse().ok()?;
-    let stime: f64 = fields.get(12)?.parse().ok()?;
-    // Linux reports clock ticks of 1/100 s (USER_HZ) on every common architecture.
-    Some((utime + stime) / 100.0)
-}
-
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
@@ -231,7 +218,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
     let timings = [("detect", 3.0), ("triangulate", 0.4), ("solve", 2.0)];
     let (mut log_ms, mut wall_ms, mut cpu_ms, mut mb) = (vec![], vec![], vec![], vec![]);
     for _ in 0..a.runs.max(1) {
-        let cpu0 = process_cpu_secs();
+        let cpu0 = helmcap::solve::benchmark::process_cpu_seconds();
         let t0 = Instant::now();
         let mut sink = RerunSink::new(RerunTarget::File(path.clone()), params.clone())?;
         sink.begin_session(&session)?;
@@ -278,7 +265,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
         let frames = a.frames.max(1) as f64;
         wall_ms.push(t0.elapsed().as_secs_f64() * 1e3 / frames);
         log_ms.push(in_log * 1e3 / frames);
-        if let (Some(c0), Some(c1)) = (cpu0, process_cpu_secs()) {
+        if let (Some(c0), Some(c1)) = (cpu0, helmcap::solve::benchmark::process_cpu_seconds()) {
             cpu_ms.push((c1 - c0) * 1e3 / frames);
         }
         let size = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
