@@ -9,13 +9,10 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use helmcap::camera::StereoRig;
 use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
-use helmcap::lgi::LgiParams;
 use helmcap::pipeline::{GroundTruth, PipelineConfig};
-use helmcap::solve::Solver;
-use nalgebra::Point3;
 
 use super::DatasetArgs;
-use super::replay::{Export, load_layout, print_summary, stop_flag};
+use super::replay::{Export, dense_stages, load_dataset_and_layout, print_summary, stop_flag};
 
 /// Arguments of `helmcap live`.
 #[derive(Debug, clap::Args)]
@@ -130,51 +127,27 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         anyhow::bail!("--seconds {s} must be positive");
     }
     let live_config = super::record::load_config(&args.config, args.sync_port.as_deref())?;
-    let layout = load_layout(&args.dataset, args.markers.as_deref())?;
-    let ds = DatasetArgs {
+    let dataset_args = DatasetArgs {
         dataset: args.dataset.clone(),
         no_cache: args.no_cache,
         cache_dir: args.cache_dir.clone(),
-    }
-    .load()?;
-    layout
-        .validate_for(&ds)
-        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
-    let neutral_markers: Vec<Point3<f64>> = layout
-        .markers
-        .iter()
-        .map(|m| ds.neutral.positions[m.vertex as usize])
-        .collect();
-    let layout = Arc::new(layout);
+    };
+    let (ds, layout, neutral_markers) =
+        load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
     let ground_truth = match &args.test_source {
         Some(session) => GroundTruth::load(session, &layout)
             .with_context(|| format!("reading ground truth of {}", session.display()))?
             .map(Arc::new),
         None => None,
     };
-    let mut solver = None;
-    let mut enhancer = None;
-    if !args.no_solve {
-        let params = LgiParams::default();
-        let index = super::solve::lgi_index_cached(
-            &ds,
-            &layout,
-            &params,
-            (!args.no_cache).then(|| {
-                args.cache_dir
-                    .clone()
-                    .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
-            }),
-        )?;
-        solver = Some(Solver::lgi(index, &params)?);
-        if args.enhance {
-            let params = super::enhance::read_params(None)?;
-            let (_, e) = super::enhance::build_enhancer(&args.dataset, &params)?;
-            enhancer = Some(Arc::new(e));
-        }
-    } else if !args.export.iter().all(|e| *e == Export::C3d) || args.enhance {
-        anyhow::bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
-    }
+    let dense = dense_stages(
+        &ds,
+        &layout,
+        &dataset_args,
+        args.no_solve,
+        args.enhance,
+        &args.export,
+    )?;
 
     // The cameras start last, once everything slow is built.
     let stop = stop_flag();
@@ -193,11 +166,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     config.frame_count = args.frames;
     config.first_frame = 0;
     config.ground_truth = ground_truth;
-    if let Some(s) = solver {
-        config.solver = Some(s);
-        config.neutral = Some(Arc::new(ds.neutral.clone()));
-        config.face_vertices = Some(ds.face_vertices.clone());
-        config.enhancer = enhancer;
+    if let Some(stages) = dense {
+        stages.install(&mut config, &ds);
     }
 
     let out = &args.out;

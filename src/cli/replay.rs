@@ -9,6 +9,7 @@ use std::sync::{Arc, OnceLock};
 use anyhow::{Context, bail};
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
 use helmcap::dataset::{Dataset, MarkerLayout};
+use helmcap::enhance::Enhancer;
 use helmcap::lgi::LgiParams;
 use helmcap::pipeline::{
     FrameResult, GroundTruth, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
@@ -213,22 +214,13 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .cloned()
         .context("the session names no calibration; pass --calib")?;
     let info = source.info().clone();
-    let layout = load_layout(&args.dataset, args.markers.as_deref())?;
     let dataset_args = DatasetArgs {
         dataset: args.dataset.clone(),
         no_cache: args.no_cache,
         cache_dir: args.cache_dir.clone(),
     };
-    let ds: Dataset = dataset_args.load()?;
-    layout
-        .validate_for(&ds)
-        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
-    let neutral_markers: Vec<Point3<f64>> = layout
-        .markers
-        .iter()
-        .map(|m| ds.neutral.positions[m.vertex as usize])
-        .collect();
-    let layout = Arc::new(layout);
+    let (ds, layout, neutral_markers) =
+        load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.channel_capacity = args.queue;
     config.name = args
@@ -239,28 +231,15 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     config.timecode_rate = info.timecode_rate;
     config.frame_count = Some(info.frames.len());
     config.first_frame = info.frames.first().map_or(0, |f| f.0);
-    if !args.no_solve {
-        let params = LgiParams::default();
-        let index = super::solve::lgi_index_cached(
-            &ds,
-            &layout,
-            &params,
-            (!args.no_cache).then(|| {
-                args.cache_dir
-                    .clone()
-                    .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
-            }),
-        )?;
-        config.solver = Some(Solver::lgi(index, &params)?);
-        config.neutral = Some(Arc::new(ds.neutral.clone()));
-        config.face_vertices = Some(ds.face_vertices.clone());
-        if args.enhance {
-            let params = super::enhance::read_params(None)?;
-            let (_, enhancer) = super::enhance::build_enhancer(&args.dataset, &params)?;
-            config.enhancer = Some(Arc::new(enhancer));
-        }
-    } else if !args.export.iter().all(|e| *e == Export::C3d) || args.enhance {
-        bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
+    if let Some(stages) = dense_stages(
+        &ds,
+        &layout,
+        &dataset_args,
+        args.no_solve,
+        args.enhance,
+        &args.export,
+    )? {
+        stages.install(&mut config, &ds);
     }
     config.ground_truth = GroundTruth::load(&args.session, &layout)
         .with_context(|| format!("reading ground truth of {}", args.session.display()))?
@@ -366,6 +345,88 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         eprintln!("stopped early: {reason}");
     }
     Ok(())
+}
+
+/// The dataset and its marker layout (checked against each other), and the markers'
+/// positions on the neutral: what every pipeline run starts from.
+///
+/// # Errors
+/// Unreadable dataset or layout, or a layout that does not fit the dataset.
+pub fn load_dataset_and_layout(
+    dataset: &DatasetArgs,
+    markers: Option<&Path>,
+) -> anyhow::Result<(Dataset, Arc<MarkerLayout>, Vec<Point3<f64>>)> {
+    let layout = load_layout(&dataset.dataset, markers)?;
+    let ds = dataset.load()?;
+    layout
+        .validate_for(&ds)
+        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
+    let neutral_markers = layout
+        .markers
+        .iter()
+        .map(|m| ds.neutral.positions[m.vertex as usize])
+        .collect();
+    Ok((ds, Arc::new(layout), neutral_markers))
+}
+
+/// The dense stages of a run: LGI and, optionally, detail enhancement.
+pub struct DenseStages {
+    solver: Solver,
+    enhancer: Option<Arc<Enhancer>>,
+}
+
+impl DenseStages {
+    /// Switches the stages on in `config` (with the dataset's neutral and face vertices).
+    pub fn install(self, config: &mut PipelineConfig, ds: &Dataset) {
+        config.solver = Some(self.solver);
+        config.neutral = Some(Arc::new(ds.neutral.clone()));
+        config.face_vertices = Some(ds.face_vertices.clone());
+        config.enhancer = self.enhancer;
+    }
+}
+
+/// Builds the dense stages a run asks for: the LGI solver (its index from the cache unless
+/// the dataset options say not to) and, with `enhance`, the enhancer. `None` with
+/// `no_solve`, which writes no meshes.
+///
+/// # Errors
+/// `--no-solve` with `--enhance` or a mesh export; an index or enhancer that cannot be
+/// built.
+pub fn dense_stages(
+    ds: &Dataset,
+    layout: &MarkerLayout,
+    dataset: &DatasetArgs,
+    no_solve: bool,
+    enhance: bool,
+    exports: &[Export],
+) -> anyhow::Result<Option<DenseStages>> {
+    if no_solve {
+        if enhance || !exports.iter().all(|e| *e == Export::C3d) {
+            bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
+        }
+        return Ok(None);
+    }
+    let params = LgiParams::default();
+    let index = super::solve::lgi_index_cached(
+        ds,
+        layout,
+        &params,
+        (!dataset.no_cache).then(|| {
+            dataset
+                .cache_dir
+                .clone()
+                .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
+        }),
+    )?;
+    let solver = Solver::lgi(index, &params)?;
+    let enhancer = if enhance {
+        let params = super::enhance::read_params(None)?;
+        let (_, enhancer) = super::enhance::build_enhancer(&dataset.dataset, &params)?;
+        Some(Arc::new(enhancer))
+    } else {
+        None
+    };
+    Ok(Some(DenseStages { solver, enhancer }))
 }
 
 /// The file sinks every pipeline run writes into `out` (CSV and metrics), plus one per
