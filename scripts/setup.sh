@@ -43,12 +43,10 @@ fi
 python_env="${HELMCAP_PYTHON_ENV:-$HOME/.cache/helmcap-python}"
 if [ ! -x "$python_env/bin/rerun" ] || ! "$python_env/bin/python" -c "import pxr, c3d" 2>/dev/null; then
   echo "setup: installing the Python cross-check tools into $python_env"
-  rm -rf "$python_env"
   if ! python3 -m venv "$python_env" 2>/dev/null; then
     # Debian ships venv (and its pip) separately.
     DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends \
       python3 python3-venv python3-pip || true
-    rm -rf "$python_env"
     python3 -m venv "$python_env" || true
   fi
   if ! "$python_env/bin/pip" install -q usd-core c3d rerun-sdk==0.36.3; then
