@@ -18,7 +18,16 @@
 //! - Timecode, when the take has one, in the `TIMECODE` group: `START` (the first frame's
 //!   timecode with its rate, `01:00:00:00.0@30`), `RATE` (`30`, `29.97df`, ...),
 //!   `DROP_FRAMES` (0/1), `SUBFRAMES_PER_FRAME` (camera frames per timecode frame) and
-//!   `FIRST_FRAME` (the C3D frame the start timecode belongs to).
+//!   `FIRST_FRAME` (the C3D frame the start timecode belongs to, two 16-bit words: low,
+//!   high).
+//!
+//! - Long takes (C3D.ORG, "Maintaining C3D frame count compatibility"): the header's
+//!   16-bit frame range cannot pass 65,535. Beyond it the header says 1 to 65,535 (what
+//!   older readers expect), `POINT:FRAMES` holds the count as a float (it is an integer up
+//!   to 32,767), `POINT:LONG_FRAMES` holds it too, and `TRIAL:ACTUAL_START_FIELD` /
+//!   `ACTUAL_END_FIELD` (always written, two 16-bit words: low, high) give the true
+//!   range. At 60 fps 65,535 frames are 18 minutes; the float count is exact to 16.7
+//!   million frames (77 hours).
 //!
 //! The data goes to a temporary file as frames arrive; [`Sink::finish`] writes header and
 //! parameters and publishes the file atomically.
@@ -35,9 +44,13 @@ const POINT_SCALE: f32 = -0.1;
 /// Processor type of the parameter section: Intel.
 const PROCESSOR_INTEL: u8 = 84;
 /// Largest C3D frame number the 16-bit header fields hold.
-const MAX_FRAME: usize = 65_535;
+const MAX_HEADER_FRAME: usize = 65_535;
+/// Largest frame number of the two-word `TRIAL` fields, and largest count a float
+/// `POINT:FRAMES` holds exactly (2^24).
+const MAX_FRAME: usize = 1 << 24;
 
 /// A parameter value.
+#[derive(Clone)]
 enum Value {
     Int(Vec<i16>),
     Float(Vec<f32>),
@@ -241,9 +254,9 @@ impl Sink for C3dSink {
             )));
         }
         let first = self.first_frame.unwrap_or(f.index);
-        if f.index - first + 1 > MAX_FRAME {
+        if f.index + 1 > MAX_FRAME || f.index - first + 1 > MAX_FRAME {
             return Err(SinkError::Other(format!(
-                "a C3D file holds at most {MAX_FRAME} frames; split the take (--frames)"
+                "C3D frame numbers end at {MAX_FRAME}; split the take (--frames)"
             )));
         }
         let gap = self.invalid_frame();
@@ -300,15 +313,17 @@ impl C3dSink {
         let first = self.first_frame.unwrap_or(0) + 1;
         let frames = self.first_frame.map_or(0, |f| self.next_frame - f);
         let last = first + frames.max(1) - 1;
-        let too_many = || {
-            SinkError::Other(format!(
-                "C3D frame numbers end at {MAX_FRAME}; split the take (--frames)"
-            ))
+        // Past the header's 16-bit range, the header says 1..=65,535 and the TRIAL
+        // fields carry the true range (see the module docs).
+        let (first16, last16) = match (u16::try_from(first), u16::try_from(last)) {
+            (Ok(a), Ok(b)) => (a, b),
+            _ => (1, frames.clamp(1, MAX_HEADER_FRAME) as u16),
         };
-        let (first16, last16) = (
-            u16::try_from(first).map_err(|_| too_many())?,
-            u16::try_from(last).map_err(|_| too_many())?,
-        );
+        let long_take = frames > MAX_HEADER_FRAME;
+        let frames_value = match i16::try_from(frames) {
+            Ok(n) => Value::Int(vec![n]),
+            Err(_) => Value::Float(vec![frames as f32]),
+        };
         let points16 = i16::try_from(points)
             .map_err(|_| SinkError::Other(format!("{points} markers do not fit C3D")))?;
         let rate = self.fps as f32;
@@ -324,12 +339,15 @@ impl C3dSink {
                 "markers per frame",
                 Value::Int(vec![points16]),
             );
-            p.param(
-                point,
-                "FRAMES",
-                "frames",
-                Value::Int(vec![frames as u16 as i16]),
-            );
+            p.param(point, "FRAMES", "frames", frames_value.clone());
+            if long_take {
+                p.param(
+                    point,
+                    "LONG_FRAMES",
+                    "frames (more than 65535)",
+                    Value::Float(vec![frames as f32]),
+                );
+            }
             p.param(
                 point,
                 "DATA_START",
@@ -431,8 +449,8 @@ impl C3dSink {
                 p.param(
                     g,
                     "FIRST_FRAME",
-                    "C3D frame of START",
-                    Value::Int(vec![(index + 1) as u16 as i16]),
+                    "C3D frame of START (low, high 16-bit words)",
+                    Value::Int(split(index + 1)),
                 );
             }
             p.bytes()
@@ -476,5 +494,129 @@ impl C3dSink {
             w.write_all(&vec![0u8; pad])
         })?;
         out.commit()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use nalgebra::Point3;
+
+    use super::*;
+    use crate::capture::GrayImage;
+    use crate::dataset::{Marker, MarkerLayout};
+    use crate::pipeline::MarkerResult;
+
+    fn session(first_frame: usize) -> SessionMeta {
+        let markers = ["brow_l", "chin"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| Marker {
+                name: (*n).into(),
+                vertex: k as u32,
+                stabilize_weight: 1.0,
+            })
+            .collect();
+        SessionMeta {
+            name: "long".into(),
+            fps: 60.0,
+            timecode_rate: None,
+            first_frame,
+            frame_count: None,
+            layout: Arc::new(MarkerLayout { markers }),
+            neutral_markers_head: Arc::new(Vec::new()),
+            neutral: None,
+            face_vertices: None,
+            rig: None,
+            image_size: None,
+        }
+    }
+
+    /// A frame where the first marker is gap-filled at a position coding the frame index
+    /// and the second is missing.
+    fn frame(index: usize) -> FrameResult {
+        let image = GrayImage {
+            width: 1,
+            height: 1,
+            data: vec![0],
+        };
+        let mut f = FrameResult::new(index, 0, None, [image.clone(), image], 2);
+        f.markers[0] = MarkerResult {
+            status: BundleStatus::GapFilled,
+            point_in_head: Some(Point3::new(index as f64, 1.0, 2.0)),
+            ..MarkerResult::MISSING
+        };
+        f
+    }
+
+    /// A take longer than the header's 16-bit frame range (70,000 frames at 60 fps,
+    /// starting at frame 5, with one source gap) is written whole, and c3dio reads every
+    /// frame back in place.
+    #[test]
+    fn takes_longer_than_65535_frames_are_written_whole() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bundles.c3d");
+        let mut sink = C3dSink::new(&path);
+        sink.begin(&session(5)).unwrap();
+        let (first, count, gap) = (5usize, 70_000usize, 40_000usize);
+        for index in (first..first + count).filter(|&i| i != gap) {
+            sink.write(&frame(index)).unwrap();
+        }
+        sink.finish(&Metrics::default()).unwrap();
+        let c3d = c3dio::C3d::load(path.to_str().unwrap()).expect("c3dio reads it");
+        assert_eq!(c3d.points.rows(), count);
+        // The header holds the compatibility range; the true one is in TRIAL.
+        assert_eq!(c3d.points.first_frame, 1);
+        for index in [
+            first,
+            first + 1,
+            gap - 1,
+            gap + 1,
+            65_540,
+            first + count - 1,
+        ] {
+            let p = c3d.points[index - first][0];
+            assert_eq!(f64::from(p.point[0]), index as f64, "frame {index}");
+            assert_eq!(p.residual, 0.0, "frame {index} is gap-filled");
+            assert!(
+                c3d.points[index - first][1].residual < 0.0,
+                "missing marker"
+            );
+        }
+        assert!(c3d.points[gap - first][0].residual < 0.0, "source gap");
+    }
+
+    /// The parameter section of a long take: FRAMES as a float, LONG_FRAMES, and the
+    /// two-word TRIAL range.
+    #[test]
+    fn long_take_parameters_follow_the_c3d_org_convention() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bundles.c3d");
+        let mut sink = C3dSink::new(&path);
+        sink.begin(&session(70_000)).unwrap();
+        for index in 70_000..70_000 + 40_000 {
+            sink.write(&frame(index)).unwrap();
+        }
+        sink.finish(&Metrics::default()).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(u16::from_le_bytes([bytes[6], bytes[7]]), 1, "header first");
+        assert_eq!(
+            u16::from_le_bytes([bytes[8], bytes[9]]),
+            40_000,
+            "header last"
+        );
+        let c3d = c3dio::C3d::load(path.to_str().unwrap()).expect("c3dio reads it");
+        assert_eq!(c3d.points.rows(), 40_000);
+        assert_eq!(f64::from(c3d.points[39_999][0].point[0]), 109_999.0);
+    }
+
+    #[test]
+    fn frame_numbers_past_the_float_range_are_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut sink = C3dSink::new(&dir.path().join("bundles.c3d"));
+        sink.begin(&session(MAX_FRAME)).unwrap();
+        let err = sink.write(&frame(MAX_FRAME)).unwrap_err();
+        assert!(err.to_string().contains("split the take"), "{err}");
     }
 }
