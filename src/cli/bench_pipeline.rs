@@ -258,7 +258,22 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
             vec![Box::new(probe)],
         )?;
         if let Ok(f) = frames.lock() {
-            slowest.push(slowest_frames(&f, 4).join("; "));
+            let first: Vec<String> = f
+                .iter()
+                .take(4)
+                .map(|(i, ms, t)| {
+                    format!(
+                        "#{i} {ms:.1} ms (track {:.1}, solve {:.1})",
+                        t.get(helmcap::pipeline::Stage::Track),
+                        t.get(helmcap::pipeline::Stage::Solve)
+                    )
+                })
+                .collect();
+            slowest.push(format!(
+                "slowest {}\n    first {}",
+                slowest_frames(&f, 4).join("; "),
+                first.join("; ")
+            ));
         }
         let e = m.latency_ms.get("end_to_end").copied();
         p50.push(e.map_or(f64::NAN, |s| s.p50));
@@ -272,7 +287,7 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
         median(dropped)
     );
     for (run, line) in slowest.iter().enumerate() {
-        println!("  run {}: slowest frames at the sinks: {line}", run + 1);
+        println!("  run {}, frames at the sinks: {line}", run + 1);
     }
 
     // Memory soak.
