@@ -182,6 +182,50 @@ fn actor_jaw_pose_is_estimated_from_the_bundles() {
     }
 }
 
+/// A stream whose missing markers change every frame (single markers, neighbours missing
+/// together, recurring groups): a solver reusing the weights of missing-marker clusters it
+/// met before gives exactly what a fresh solver gives on each frame.
+#[test]
+fn missing_marker_weights_reused_across_frames_match_a_fresh_solve() {
+    let (ds, layout, a) = actor();
+    let params = LgiParams::default();
+    let mut warm = LgiSolver::new(ds, layout, &params).unwrap();
+    let index = warm.index().clone();
+    let names = a.expression_names();
+    let eyelid: Vec<usize> = (0..layout.len()).filter(|m| m % 17 == 3).take(4).collect();
+    let mut seed = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move |below: usize| {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed % below as u64) as usize
+    };
+    for frame in 0..24u64 {
+        let mut w = vec![0.0; names.len()];
+        w[(frame as usize) % names.len()] = 0.6;
+        let truth = a.evaluate(&w).positions;
+        let mut b = bundles_of(layout, &truth, frame);
+        for _ in 0..1 + next(4) {
+            b.positions[next(layout.len())] = None;
+        }
+        if frame % 3 == 0 {
+            for &m in &eyelid {
+                b.positions[m] = None;
+            }
+        }
+        let mut fresh = LgiSolver::from_index(index.clone(), &params).unwrap();
+        warm.reset();
+        let x = warm.solve(&b).unwrap();
+        let y = fresh.solve(&b).unwrap();
+        assert_eq!(x, y, "frame {frame}");
+        for (m, p) in layout.markers.iter().zip(&b.positions) {
+            if let Some(p) = p {
+                assert!((x[m.vertex as usize] - p).norm() < 1e-6, "frame {frame}");
+            }
+        }
+    }
+}
+
 /// Robustness on the actor (fast): missing markers, bundles far outside the data, frames
 /// that do not fit.
 #[test]

@@ -270,21 +270,34 @@ pub struct LgiSolver {
     params: LgiParams,
     previous: Vec<Option<[u16; 4]>>,
     scratch: select::Scratch,
-    /// Recent missing-marker sets and the recomputed weights of the affected vertices.
-    missing_cache: Vec<(Vec<bool>, Arc<MissingWeights>)>,
+    /// Recomputed weights of recent clusters of missing markers (see
+    /// [`NaturalNeighborWeights::missing_clusters`]), with the frame each was last used.
+    cluster_cache: std::collections::HashMap<Vec<u32>, (u64, Arc<ClusterWeights>)>,
+    /// Frames solved (the clock of `cluster_cache`).
+    solved: u64,
 }
 
-/// Blending weights of the vertices affected by a set of missing markers.
+/// Blending weights of the vertices affected by one cluster of missing markers (the
+/// cluster's markers left out of the diagram).
+#[derive(Debug)]
+struct ClusterWeights {
+    /// `(vertex, weights)` for every vertex with weight on a marker of the cluster.
+    weights: Vec<(u32, Vec<(u32, f64)>)>,
+}
+
+/// Blending weights of the vertices affected by a frame's missing markers.
 #[derive(Debug)]
 struct MissingWeights {
     /// Whether each vertex is affected.
     affected: Vec<bool>,
-    /// `(vertex, weights)` for the affected vertices.
-    weights: Vec<(u32, Vec<(u32, f64)>)>,
+    /// The clusters of missing markers; every affected vertex is in exactly one.
+    clusters: Vec<Arc<ClusterWeights>>,
 }
 
-/// Number of missing-marker sets whose weights are kept.
-const MISSING_CACHE: usize = 8;
+/// Number of missing-marker clusters whose weights are kept. A cluster's entry holds the
+/// weights of a few hundred vertices; every single marker of a 120-marker layout fits,
+/// with room for the recurring groups (an eyelid, the lips).
+const CLUSTER_CACHE: usize = 512;
 
 impl LgiSolver {
     /// Builds the index of `dataset` for `layout` and a solver over it.
@@ -313,7 +326,8 @@ impl LgiSolver {
             params: *params,
             previous: vec![None; n],
             scratch: select::Scratch::default(),
-            missing_cache: Vec::new(),
+            cluster_cache: Default::default(),
+            solved: 0,
         })
     }
 
@@ -560,23 +574,24 @@ impl LgiSolver {
                 acc[v as usize] += r * lam;
             }
         }
-        if let Some(mw) = &missing {
-            for (v, ws) in &mw.weights {
-                let v = *v as usize;
-                let mut a = Vector3::zeros();
-                for &(m, lam) in ws {
-                    let m = m as usize;
-                    let mi = &index.markers[m];
-                    let mut d = residual[m];
-                    for &(j, w) in &weights.markers[m].points {
-                        if let Some(s) = mi.shapes[j as usize] {
-                            d += index.displacements[s as usize][v] * w;
-                        }
+        for (v, ws) in missing
+            .iter()
+            .flat_map(|mw| mw.clusters.iter().flat_map(|c| c.weights.iter()))
+        {
+            let v = *v as usize;
+            let mut a = Vector3::zeros();
+            for &(m, lam) in ws {
+                let m = m as usize;
+                let mi = &index.markers[m];
+                let mut d = residual[m];
+                for &(j, w) in &weights.markers[m].points {
+                    if let Some(s) = mi.shapes[j as usize] {
+                        d += index.displacements[s as usize][v] * w;
                     }
-                    a += d * lam;
                 }
-                acc[v] = a;
+                a += d * lam;
             }
+            acc[v] = a;
         }
         let mut out: Vec<Point3<f64>> =
             index.neutral.iter().zip(&acc).map(|(x, d)| x + d).collect();
@@ -589,34 +604,57 @@ impl LgiSolver {
         Ok(out)
     }
 
-    /// Blending weights of the vertices affected by the missing markers (cached per set).
-    fn missing_weights(&mut self, present: &[bool]) -> Result<Arc<MissingWeights>, LgiError> {
-        if let Some(pos) = self.missing_cache.iter().position(|(k, _)| k == present) {
-            let entry = self.missing_cache.remove(pos);
-            let w = Arc::clone(&entry.1);
-            self.missing_cache.push(entry);
-            return Ok(w);
-        }
-        let n = self.index.neutral.len();
-        let mut affected = vec![false; n];
-        for (m, mi) in self.index.markers.iter().enumerate() {
-            if !present[m] {
-                for &(v, _) in &mi.support {
+    /// Blending weights of the vertices affected by the missing markers, put together
+    /// from the independent clusters of missing markers, each computed once and cached.
+    fn missing_weights(&mut self, present: &[bool]) -> Result<MissingWeights, LgiError> {
+        self.solved += 1;
+        let index = Arc::clone(&self.index);
+        let supports: Vec<&[(u32, f64)]> = index.markers.iter().map(|mi| &mi.support[..]).collect();
+        let clusters = index.weights.missing_clusters(present, &supports);
+        let mut affected = vec![false; index.neutral.len()];
+        let mut out = Vec::with_capacity(clusters.len());
+        for cluster in clusters {
+            let mut vertices: Vec<u32> = Vec::new();
+            for &m in &cluster {
+                for &(v, _) in supports[m as usize] {
                     affected[v as usize] = true;
+                    vertices.push(v);
                 }
             }
+            if let Some((used, w)) = self.cluster_cache.get_mut(&cluster) {
+                *used = self.solved;
+                out.push(Arc::clone(w));
+                continue;
+            }
+            vertices.sort_unstable();
+            vertices.dedup();
+            let mut present_c = vec![true; present.len()];
+            for &m in &cluster {
+                present_c[m as usize] = false;
+            }
+            let new = index.weights.recompute(&present_c, &vertices)?;
+            let w = Arc::new(ClusterWeights {
+                weights: vertices.into_iter().zip(new).collect(),
+            });
+            if self.cluster_cache.len() >= CLUSTER_CACHE {
+                // Forget the least recently used cluster.
+                if let Some(oldest) = self
+                    .cluster_cache
+                    .iter()
+                    .min_by_key(|(_, (used, _))| *used)
+                    .map(|(k, _)| k.clone())
+                {
+                    self.cluster_cache.remove(&oldest);
+                }
+            }
+            self.cluster_cache
+                .insert(cluster, (self.solved, Arc::clone(&w)));
+            out.push(w);
         }
-        let vertices: Vec<u32> = (0..n as u32).filter(|&v| affected[v as usize]).collect();
-        let new = self.index.weights.recompute(present, &vertices)?;
-        let mw = Arc::new(MissingWeights {
+        Ok(MissingWeights {
             affected,
-            weights: vertices.into_iter().zip(new).collect(),
-        });
-        if self.missing_cache.len() >= MISSING_CACHE {
-            self.missing_cache.remove(0);
-        }
-        self.missing_cache.push((present.to_vec(), Arc::clone(&mw)));
-        Ok(mw)
+            clusters: out,
+        })
     }
 }
 

@@ -84,7 +84,7 @@ pub enum SolveError {
 #[derive(Debug)]
 pub enum Solver {
     /// Local geometric indexing.
-    Lgi(LgiSolver),
+    Lgi(Box<LgiSolver>),
     /// Thin-plate RBF.
     Rbf(RbfSolver),
     /// Bounded blendshape fit.
@@ -103,7 +103,7 @@ impl Solver {
         params: &SolveParams,
     ) -> Result<Self, SolveError> {
         Ok(match method {
-            Method::Lgi => Solver::Lgi(LgiSolver::new(dataset, layout, &params.lgi)?),
+            Method::Lgi => Solver::Lgi(Box::new(LgiSolver::new(dataset, layout, &params.lgi)?)),
             Method::Rbf => Solver::Rbf(RbfSolver::new(dataset, layout, &params.rbf)?),
             Method::Blendshape => {
                 Solver::Blendshape(BlendshapeSolver::new(dataset, layout, &params.blendshape)?)
@@ -116,7 +116,7 @@ impl Solver {
     /// # Errors
     /// [`SolveError::Lgi`] when `params` is invalid.
     pub fn lgi(index: Arc<LgiIndex>, params: &LgiParams) -> Result<Self, SolveError> {
-        Ok(Solver::Lgi(LgiSolver::from_index(index, params)?))
+        Ok(Solver::Lgi(Box::new(LgiSolver::from_index(index, params)?)))
     }
 
     /// The method.
