@@ -35,17 +35,39 @@ fn ict_low_passed_combinations_get_their_details_back() {
     let enhancer = Enhancer::new(&dataset, &EnhanceParams::default()).unwrap();
     let face: Vec<usize> = dataset.face_vertex_indices().collect();
     let neutral = &dataset.neutral.positions;
-    let combos = [
-        [("browInnerUp_L", 0.6), ("mouthSmile_R", 0.7)],
-        [("eyeSquint_L", 0.5), ("jawOpen", 0.4)],
+    let combos: [&[(&str, f64)]; 4] = [
+        &[("browInnerUp_L", 0.6), ("mouthSmile_R", 0.7)],
+        &[("eyeSquint_L", 0.5), ("jawOpen", 0.4)],
+        &[
+            ("browDown_L", 0.8),
+            ("browDown_R", 0.8),
+            ("noseSneer_L", 0.5),
+        ],
+        &[("mouthFunnel", 0.6), ("browOuterUp_R", 0.9)],
     ];
-    let (mut before, mut after) = (0.0, 0.0);
+    // High band H(x) = x − f(x) of the error, f the database's low-pass (Eq. 1).
+    let high = |x: &[Point3<f64>], truth: &[Point3<f64>]| -> f64 {
+        let diff: Vec<Point3<f64>> = x
+            .iter()
+            .zip(truth)
+            .map(|(p, q)| Point3::from(p - q))
+            .collect();
+        let low = enhancer.low_pass().apply(&diff).unwrap();
+        let h: Vec<Point3<f64>> = diff
+            .iter()
+            .zip(&low)
+            .map(|(p, q)| Point3::from(p - q))
+            .collect();
+        rms(&h, &vec![Point3::origin(); h.len()], &face)
+    };
+    let pct = |b: f64, a: f64| 100.0 * (1.0 - a / b);
+    let mut sum = [[0.0; 3]; 2];
     for combo in combos {
         let mut truth = neutral.clone();
-        for (name, w) in combo {
+        for &(name, w) in combo {
             let Some(k) = dataset.shape_index(name) else {
-                println!("skipping {name}: not in the dataset");
-                continue;
+                println!("skipping the ICT validation: {name} is not in the dataset");
+                return;
             };
             for (t, (s, n)) in truth
                 .iter_mut()
@@ -56,13 +78,47 @@ fn ict_low_passed_combinations_get_their_details_back() {
         }
         let input = enhancer.low_pass().apply(&truth).unwrap();
         let out = enhancer.enhance(&input).unwrap();
-        let (b, a) = (rms(&input, &truth, &face), rms(&out, &truth, &face));
+        let ceiling = enhancer
+            .enhance_with_reference_details(&input, &truth)
+            .unwrap();
+        let full = [&input, &out, &ceiling].map(|x| rms(x, &truth, &face));
+        let hf = [&input, &out, &ceiling].map(|x| high(x, &truth));
         println!(
-            "ICT {combo:?}: face RMS {b:.3} -> {a:.3} mm ({:.0} % recovered)",
-            100.0 * (1.0 - a / b)
+            "ICT {combo:?}: face RMS {:.3} -> {:.3} mm ({:.0} % recovered), high band {:.3} -> \
+             {:.3} mm ({:.0} % recovered; with the truth's own details {:.3} mm, {:.0} %)",
+            full[0],
+            full[1],
+            pct(full[0], full[1]),
+            hf[0],
+            hf[1],
+            pct(hf[0], hf[1]),
+            hf[2],
+            pct(hf[0], hf[2]),
         );
-        before += b;
-        after += a;
+        for i in 0..3 {
+            sum[0][i] += full[i];
+            sum[1][i] += hf[i];
+        }
     }
-    assert!(after < 0.9 * before, "{after} vs {before}");
+    let [full, hf] = sum;
+    println!(
+        "ICT overall: face RMS {:.0} % recovered (ceiling {:.0} %), high band {:.0} % recovered \
+         (ceiling {:.0} %)",
+        pct(full[0], full[1]),
+        pct(full[0], full[2]),
+        pct(hf[0], hf[1]),
+        pct(hf[0], hf[2]),
+    );
+    // Measured 29 % of the high band against a ceiling of 32 %: low-passing the whole
+    // shape also removes part of its low band (f(f(x)) ≠ f(x)), which the enhancement
+    // keeps by design, so even the truth's own details cannot do much better.
+    assert!(hf[1] < 0.8 * hf[0], "{} vs {}", hf[1], hf[0]);
+    assert!(full[1] < 0.9 * full[0], "{} vs {}", full[1], full[0]);
+    // The matching and blending reach most of what is reachable.
+    assert!(
+        hf[0] - hf[1] > 0.75 * (hf[0] - hf[2]),
+        "recovered {} of a reachable {}",
+        hf[0] - hf[1],
+        hf[0] - hf[2]
+    );
 }

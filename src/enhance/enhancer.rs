@@ -314,19 +314,7 @@ impl Enhancer {
         for (k, (_, positions)) in frames.iter().enumerate() {
             let low = partial.low_pass.apply(positions)?;
             // High-frequency details: gradients from f(d) to d (world frame, §4.2).
-            let codes: Vec<[f64; POLAR_CODE_LEN]> = partial
-                .triangles
-                .par_iter()
-                .map(|t| {
-                    let [a, b, c] = t.map(|v| low[v as usize]);
-                    let [x, y, z] = t.map(|v| positions[v as usize]);
-                    let f = triangle_frame(&x, &y, &z)
-                        * triangle_frame(&a, &b, &c)
-                            .try_inverse()
-                            .unwrap_or_else(Matrix3::identity);
-                    encode_polar(&f).unwrap_or_else(identity_code)
-                })
-                .collect();
+            let codes = detail_codes(&partial.triangles, &low, positions);
             for c in 0..POLAR_CODE_LEN {
                 let row = &mut details[(k * POLAR_CODE_LEN + c) * t_count..][..t_count];
                 for (d, code) in row.iter_mut().zip(&codes) {
@@ -485,20 +473,75 @@ impl Enhancer {
             positions.iter().map(|p| head_from_input * p).collect();
         let rebuilt = self.poisson.solve(&gradients, &input_aligned)?;
         lap(&mut timings.reconstruct);
-        let back = horn_alignment(&rebuilt, positions, &self.face_weights)?;
-        let mut out: Vec<Point3<f64>> = rebuilt.iter().map(|p| back * p).collect();
-        if self.keep_input_low_band {
-            // f(a) + (x − f(x)): the input's low band, the reconstruction's high band.
-            let out_low = self.low_pass.apply(&out)?;
-            for ((o, ol), il) in out.iter_mut().zip(&out_low).zip(&low) {
-                *o = il + (*o - ol);
-            }
-        }
+        let out = self.place_on_input(&rebuilt, positions, &low)?;
         lap(&mut timings.finish);
         Ok(Enhanced {
             positions: out,
             region_weights,
         })
+    }
+
+    /// The rigid placement of a reconstruction onto the input `positions` (§5.5) and, when
+    /// [`EnhanceParams::keep_input_low_band`] is on, the input's low band `low` = f(a).
+    fn place_on_input(
+        &self,
+        rebuilt: &[Point3<f64>],
+        positions: &[Point3<f64>],
+        low: &[Point3<f64>],
+    ) -> Result<Vec<Point3<f64>>, EnhanceError> {
+        let back = horn_alignment(rebuilt, positions, &self.face_weights)?;
+        let mut out: Vec<Point3<f64>> = rebuilt.iter().map(|p| back * p).collect();
+        if self.keep_input_low_band {
+            // f(a) + (x − f(x)): the input's low band, the reconstruction's high band.
+            let out_low = self.low_pass.apply(&out)?;
+            for ((o, ol), il) in out.iter_mut().zip(&out_low).zip(low) {
+                *o = il + (*o - ol);
+            }
+        }
+        Ok(out)
+    }
+
+    /// The enhancement of `positions` with the high-frequency details d^h of `reference`
+    /// itself (the gradients from f(reference) to reference, §4.2) in place of the blend
+    /// of Eq. (4): what composition with the input's low-frequency gradients (§5.4) and
+    /// reconstruction (§5.5) make of an input when the database holds the exact detail.
+    ///
+    /// This is the ceiling of the validation of §7: with `reference` the true detailed
+    /// shape, the error left is what the input's own low band (f(a) ≠ f(reference)) and
+    /// the reconstruction cost, whatever the database and the matching.
+    ///
+    /// # Errors
+    /// As [`Enhancer::enhance`], for either argument.
+    pub fn enhance_with_reference_details(
+        &self,
+        positions: &[Point3<f64>],
+        reference: &[Point3<f64>],
+    ) -> Result<Vec<Point3<f64>>, EnhanceError> {
+        for (what, x) in [("input frame", positions), ("reference frame", reference)] {
+            if x.len() != self.vertex_count {
+                return Err(EnhanceError::Shape {
+                    what: "frame vertices",
+                    expected: self.vertex_count,
+                    got: x.len(),
+                });
+            }
+            if !x.iter().all(|p| p.coords.iter().all(|c| c.is_finite())) {
+                return Err(EnhanceError::NonFinite(what.to_string()));
+            }
+        }
+        let reference_low = self.low_pass.apply(reference)?;
+        let details = detail_codes(&self.triangles, &reference_low, reference);
+        let low = self.low_pass.apply(positions)?;
+        let (aligned, head_from_input) = self.align_to_smooth_neutral(&low)?;
+        let gradients: Vec<Matrix3<f64>> = details
+            .par_iter()
+            .zip(self.low_gradients(&aligned).par_iter())
+            .map(|(code, l)| decode_polar(code) * l)
+            .collect();
+        let input_aligned: Vec<Point3<f64>> =
+            positions.iter().map(|p| head_from_input * p).collect();
+        let rebuilt = self.poisson.solve(&gradients, &input_aligned)?;
+        self.place_on_input(&rebuilt, positions, &low)
     }
 
     /// Eq. (4) and §5.4: per triangle, the blend of the database details d^h with the
@@ -683,6 +726,27 @@ fn split_shared_details(
         }
     }
     (details, slots, varying, shared)
+}
+
+/// The high-frequency details d^h of a frame (§4.2): per triangle, the polar code of the
+/// deformation gradient from its low-pass `low` = f(d) to the frame `positions` = d.
+fn detail_codes(
+    triangles: &[[u32; 3]],
+    low: &[Point3<f64>],
+    positions: &[Point3<f64>],
+) -> Vec<[f64; POLAR_CODE_LEN]> {
+    triangles
+        .par_iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|v| low[v as usize]);
+            let [x, y, z] = t.map(|v| positions[v as usize]);
+            let f = triangle_frame(&x, &y, &z)
+                * triangle_frame(&a, &b, &c)
+                    .try_inverse()
+                    .unwrap_or_else(Matrix3::identity);
+            encode_polar(&f).unwrap_or_else(identity_code)
+        })
+        .collect()
 }
 
 /// The code of the identity gradient.
