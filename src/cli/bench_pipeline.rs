@@ -42,6 +42,52 @@ pub struct PipelineBenchArgs {
     pub work: Option<PathBuf>,
 }
 
+/// Records each frame's latency as it reaches the sinks (ms since the source delivered it)
+/// and its stage times, to show where the slowest frames spent their time.
+struct LatencyProbe {
+    frames: Arc<std::sync::Mutex<Vec<(usize, f64, helmcap::pipeline::StageTimings)>>>,
+}
+
+impl Sink for LatencyProbe {
+    fn name(&self) -> &str {
+        "latency-probe"
+    }
+    fn begin(&mut self, _session: &SessionMeta) -> Result<(), SinkError> {
+        Ok(())
+    }
+    fn write(&mut self, frame: &FrameResult) -> Result<(), SinkError> {
+        let ms = frame.received_at.elapsed().as_secs_f64() * 1e3;
+        if let Ok(mut f) = self.frames.lock() {
+            f.push((frame.index, ms, frame.timings));
+        }
+        Ok(())
+    }
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        Ok(())
+    }
+}
+
+/// The `k` slowest frames of a probe: index, latency at the sinks and stage times.
+fn slowest_frames(
+    frames: &[(usize, f64, helmcap::pipeline::StageTimings)],
+    k: usize,
+) -> Vec<String> {
+    let mut by_latency: Vec<_> = frames.iter().collect();
+    by_latency.sort_by(|a, b| b.1.total_cmp(&a.1));
+    by_latency
+        .iter()
+        .take(k)
+        .map(|(index, ms, t)| {
+            let stages: Vec<String> = helmcap::pipeline::Stage::ALL
+                .iter()
+                .filter(|s| t.get(**s).is_finite())
+                .map(|s| format!("{} {:.1}", s.name(), t.get(*s)))
+                .collect();
+            format!("#{index} {ms:.1} ms ({})", stages.join(", "))
+        })
+        .collect()
+}
+
 /// Samples the process's resident memory every `every` frames.
 struct RssSink {
     every: usize,
@@ -199,13 +245,21 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
 
     // Latency: frames delivered on a 60 fps clock, dropped when the pipeline is full.
     let (mut p50, mut p99, mut dropped) = (Vec::new(), Vec::new(), Vec::new());
+    let mut slowest = Vec::new();
     for _ in 0..runs {
+        let probe = LatencyProbe {
+            frames: Default::default(),
+        };
+        let frames = probe.frames.clone();
         let m = run_once(
             Box::new(PacedSource::new(open()?, source_fps)),
             &rig,
             &out,
-            Vec::new(),
+            vec![Box::new(probe)],
         )?;
+        if let Ok(f) = frames.lock() {
+            slowest.push(slowest_frames(&f, 4).join("; "));
+        }
         let e = m.latency_ms.get("end_to_end").copied();
         p50.push(e.map_or(f64::NAN, |s| s.p50));
         p99.push(e.map_or(f64::NAN, |s| s.p99));
@@ -217,6 +271,9 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
         median(p99),
         median(dropped)
     );
+    for (run, line) in slowest.iter().enumerate() {
+        println!("  run {}: slowest frames at the sinks: {line}", run + 1);
+    }
 
     // Memory soak.
     if args.soak_frames > 0 {

@@ -96,14 +96,16 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         session.display()
     );
 
+    // A build without the viewer SDK (cargo feature `rerun`) makes everything but the .rrd.
     let rrd = args.out.join("demo.rrd");
+    let with_rerun = cfg!(feature = "rerun");
     let replay_args = ReplayArgs {
         session: session.clone(),
         calib: None,
         dataset,
         markers: None,
         out: args.out.join("replay"),
-        rrd: Some(rrd.clone()),
+        rrd: with_rerun.then(|| rrd.clone()),
         // Half-size images keep the recording near 60 MB for 120 frames (240 MB at full
         // size); the markers are drawn at full precision either way.
         view: super::view::ViewerArgs {
@@ -127,7 +129,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         t.elapsed().as_secs_f64()
     );
     print_summary(&outcome.metrics, &outcome.outputs);
-    if !args.no_viewer {
+    if !with_rerun {
+        println!("no rerun recording: this helmcap was built without the `rerun` feature");
+    } else if !args.no_viewer {
         // A viewer needs a screen: on a headless machine only say how to open the file.
         let has_display = ["DISPLAY", "WAYLAND_DISPLAY"]
             .iter()
