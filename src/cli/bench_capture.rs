@@ -161,7 +161,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .flatten()
         .all(|t| t.detectable.is_some());
     println!(
-        "added σ px | visible | labeled right (% of visible) | detectable | labeled right (% of detectable) | wrong | gate px (ŝ px) | bundle RMS mm | σz bound mm | RMS / bound"
+        "added σ px | visible | labeled right (% of visible) | detectable | labeled right (% of detectable) | swaps | off-dot | gate px (ŝ px) | bundle RMS mm | σz bound mm | RMS / bound"
     );
     let base_sigma = 0.24; // Centroid RMS error of the detector on these images (tests).
     for &sigma in &args.noise_px {
@@ -169,6 +169,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         let mut rng = Jitter(0x006e_6f69_7365 ^ sigma.to_bits());
         let (mut visible, mut right, mut wrong, mut sq, mut z_sum) = (0, 0, 0, 0.0, 0.0);
         let (mut right_visible, mut detectable, mut right_detectable) = (0, 0, 0);
+        let mut off_dot = 0;
         for (f, dets) in frames.iter().zip(&detections) {
             let noisy: Vec<Vec<Detection>> = dets
                 .iter()
@@ -211,7 +212,16 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
                         z_sum += t[k].z;
                     }
                 } else {
-                    wrong += 1;
+                    // A swap when a detection used is another marker's dot; otherwise a
+                    // blob more than 4 px from any dot (a displaced or spurious blob).
+                    let swap = (0..2).any(|c| {
+                        owner(gt[c], &dets[c][m.detections[c]].centre_px).is_some_and(|j| j != k)
+                    });
+                    if swap {
+                        wrong += 1;
+                    } else {
+                        off_dot += 1;
+                    }
                 }
             }
         }
@@ -229,7 +239,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
             format!("{:>10} | {:>33}", "-", "-")
         };
         println!(
-            "{sigma:10.2} | {visible:7} | {right_visible:7} ({:5.2} %)             | {detectable_cols} | {wrong:5} | {gate:5.2} ({}) | {rms:13.3} | {bound:11.3} | {:.2}",
+            "{sigma:10.2} | {visible:7} | {right_visible:7} ({:5.2} %)             | {detectable_cols} | {wrong:5} | {off_dot:7} | {gate:5.2} ({}) | {rms:13.3} | {bound:11.3} | {:.2}",
             100.0 * right_visible as f64 / visible.max(1) as f64,
             gate_sigma.map_or("-".to_string(), |s| format!("{s:.3}")),
             rms / bound
@@ -238,7 +248,8 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     println!(
         "(σz = z²·σpx/(f·b) with z the mean marker depth, f = {f_px:.1} px, b = {b_mm:.1} mm, \
          σpx = √({base_sigma}² + added²) per coordinate; RMS is the full 3D error over every \
-         right label; wrong = swaps; detectable: ground truth's `detectable` column, \
+         right label; swaps: a detection used is another marker's dot; off-dot: a detection used \
+         is more than 4 px from every dot (a partly hidden dot's displaced blob); detectable: ground truth's `detectable` column, \
          visible and unoccluded over the whole dot with a projected minor axis of at least \
          2 px; gate: the epipolar gate at the end, with ŝ the robust scale of the residuals)"
     );
