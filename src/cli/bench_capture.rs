@@ -156,14 +156,20 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .collect();
     let f_px = rig.cam0.fx().min(rig.cam1.fx());
     let b_mm = rig.baseline_mm();
+    let has_detectable = projections
+        .values()
+        .flatten()
+        .all(|t| t.detectable.is_some());
     println!(
-        "added σ px | visible | labeled right (% of visible) | wrong | bundle RMS mm | σz bound mm | RMS / bound"
+        "added σ px | visible | labeled right (% of visible) | detectable | labeled right (% of detectable) | swaps | off-dot | gate px (ŝ px) | bundle RMS mm | σz bound mm | RMS / bound"
     );
     let base_sigma = 0.24; // Centroid RMS error of the detector on these images (tests).
     for &sigma in &args.noise_px {
         let mut labeler = new_labeler()?;
         let mut rng = Jitter(0x006e_6f69_7365 ^ sigma.to_bits());
         let (mut visible, mut right, mut wrong, mut sq, mut z_sum) = (0, 0, 0, 0.0, 0.0);
+        let (mut right_visible, mut detectable, mut right_detectable) = (0, 0, 0);
+        let mut off_dot = 0;
         for (f, dets) in frames.iter().zip(&detections) {
             let noisy: Vec<Vec<Detection>> = dets
                 .iter()
@@ -188,19 +194,34 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
                 continue;
             };
             let gt = [g0, g1];
-            visible += (0..layout.len()).filter(|&k| g0[k].1 && g1[k].1).count();
+            let is_visible = |k: usize| g0[k].visible && g1[k].visible;
+            let is_detectable =
+                |k: usize| g0[k].detectable == Some(true) && g1[k].detectable == Some(true);
+            visible += (0..layout.len()).filter(|&k| is_visible(k)).count();
+            detectable += (0..layout.len()).filter(|&k| is_detectable(k)).count();
             for (k, m) in out.markers.iter().enumerate() {
                 let Some(m) = m else { continue };
                 let ok =
                     (0..2).all(|c| owner(gt[c], &dets[c][m.detections[c]].centre_px) == Some(k));
                 if ok {
                     right += 1;
+                    right_visible += usize::from(is_visible(k));
+                    right_detectable += usize::from(is_detectable(k));
                     if let Some(t) = truth.get(&f.index) {
                         sq += (m.bundle.point_in_cam0 - t[k]).norm_squared();
                         z_sum += t[k].z;
                     }
                 } else {
-                    wrong += 1;
+                    // A swap when a detection used is another marker's dot; otherwise a
+                    // blob more than 4 px from any dot (a displaced or spurious blob).
+                    let swap = (0..2).any(|c| {
+                        owner(gt[c], &dets[c][m.detections[c]].centre_px).is_some_and(|j| j != k)
+                    });
+                    if swap {
+                        wrong += 1;
+                    } else {
+                        off_dot += 1;
+                    }
                 }
             }
         }
@@ -208,15 +229,29 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         let z = z_sum / right.max(1) as f64;
         let s_px = (base_sigma * base_sigma + sigma * sigma).sqrt();
         let bound = z * z * s_px / (f_px * b_mm);
+        let (gate, gate_sigma) = labeler.epipolar_gate();
+        let detectable_cols = if has_detectable {
+            format!(
+                "{detectable:10} | {right_detectable:7} ({:6.2} %)               ",
+                100.0 * right_detectable as f64 / detectable.max(1) as f64
+            )
+        } else {
+            format!("{:>10} | {:>33}", "-", "-")
+        };
         println!(
-            "{sigma:10.2} | {visible:7} | {right:7} ({:5.2} %)             | {wrong:5} | {rms:13.3} | {bound:11.3} | {:.2}",
-            100.0 * right as f64 / visible.max(1) as f64,
+            "{sigma:10.2} | {visible:7} | {right_visible:7} ({:5.2} %)             | {detectable_cols} | {wrong:5} | {off_dot:7} | {gate:5.2} ({}) | {rms:13.3} | {bound:11.3} | {:.2}",
+            100.0 * right_visible as f64 / visible.max(1) as f64,
+            gate_sigma.map_or("-".to_string(), |s| format!("{s:.3}")),
             rms / bound
         );
     }
     println!(
         "(σz = z²·σpx/(f·b) with z the mean marker depth, f = {f_px:.1} px, b = {b_mm:.1} mm, \
-         σpx = √({base_sigma}² + added²) per coordinate; RMS is the full 3D error)"
+         σpx = √({base_sigma}² + added²) per coordinate; RMS is the full 3D error over every \
+         right label; swaps: a detection used is another marker's dot; off-dot: a detection used \
+         is more than 4 px from every dot (a partly hidden dot's displaced blob); detectable: ground truth's `detectable` column, \
+         visible and unoccluded over the whole dot with a projected minor axis of at least \
+         2 px; gate: the epipolar gate at the end, with ŝ the robust scale of the residuals)"
     );
     if args.session.is_none() {
         let _ = std::fs::remove_dir_all(&session);
@@ -231,16 +266,25 @@ fn load_average() -> Option<String> {
 }
 
 /// The marker whose true projection is nearest `px`, within 4 px.
-fn owner(gt: &[(Point2<f64>, bool)], px: &Point2<f64>) -> Option<usize> {
+fn owner(gt: &[Truth2d], px: &Point2<f64>) -> Option<usize> {
     gt.iter()
         .enumerate()
-        .map(|(k, (p, _))| (k, (p - px).norm()))
+        .map(|(k, t)| (k, (t.px - px).norm()))
         .filter(|(_, d)| *d < 4.0)
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(k, _)| k)
 }
 
-type Projections = HashMap<(usize, usize), Vec<(Point2<f64>, bool)>>;
+/// Ground truth of one marker in one camera: true pixel, visible (geometric), and
+/// detectable (None for sessions written before the `detectable` column).
+#[derive(Debug, Clone, Copy)]
+struct Truth2d {
+    px: Point2<f64>,
+    visible: bool,
+    detectable: Option<bool>,
+}
+
+type Projections = HashMap<(usize, usize), Vec<Truth2d>>;
 
 fn read_projections(dir: &Path, layout: &MarkerLayout) -> anyhow::Result<Projections> {
     let path = dir.join("gt/projections.csv");
@@ -256,16 +300,24 @@ fn read_projections(dir: &Path, layout: &MarkerLayout) -> anyhow::Result<Project
         let cam = usize::from(f[1] == "cam1");
         let frame: usize = f[0].parse().map_err(|_| bad())?;
         let k = layout.index_of(f[2]).ok_or_else(bad)?;
-        let entry = out
-            .entry((frame, cam))
-            .or_insert_with(|| vec![(Point2::origin(), false); layout.len()]);
-        entry[k] = (
-            Point2::new(
+        let entry = out.entry((frame, cam)).or_insert_with(|| {
+            vec![
+                Truth2d {
+                    px: Point2::origin(),
+                    visible: false,
+                    detectable: Some(false),
+                };
+                layout.len()
+            ]
+        });
+        entry[k] = Truth2d {
+            px: Point2::new(
                 f[3].parse().map_err(|_| bad())?,
                 f[4].parse().map_err(|_| bad())?,
             ),
-            f[5] == "1",
-        );
+            visible: f[5] == "1",
+            detectable: f.get(9).map(|v| *v == "1"),
+        };
     }
     Ok(out)
 }

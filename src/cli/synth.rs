@@ -65,6 +65,10 @@ pub struct SynthArgs {
     /// Radius of the painted dots, mm.
     #[arg(long, default_value_t = SynthParams::default().marker_radius_mm)]
     marker_radius: f64,
+    /// Ground truth: smallest projected minor axis of a dot counted as detectable
+    /// (`detectable` column of gt/projections.csv), pixels.
+    #[arg(long, default_value_t = SynthParams::default().detectable_min_minor_axis_px)]
+    detectable_min_minor_axis: f64,
     /// Also write the ground-truth mesh of every frame (gt/mesh/frame_NNNNNN.obj).
     #[arg(long)]
     meshes: bool,
@@ -155,6 +159,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         slip_deg: args.slip_deg,
         face_distance_mm: args.distance,
         marker_radius_mm: args.marker_radius,
+        detectable_min_minor_axis_px: args.detectable_min_minor_axis,
         timecode_rate: args.timecode_rate,
         timecode_start: args.timecode_start.clone(),
         seed: args.seed.wrapping_add(7),
@@ -180,12 +185,13 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let secs = start.elapsed().as_secs_f64();
     println!(
-        "wrote {} frames ({} markers; visible in cam0 {:.1} %, cam1 {:.1} %, both {:.1} %) to {} in {:.1} s ({:.1} frames/s)",
+        "wrote {} frames ({} markers; visible in cam0 {:.1} %, cam1 {:.1} %, both {:.1} %, detectable in both {:.1} %) to {} in {:.1} s ({:.1} frames/s)",
         summary.frames,
         summary.markers,
         100.0 * summary.visible_cam0 as f64 / (summary.frames * summary.markers) as f64,
         100.0 * summary.visible_cam1 as f64 / (summary.frames * summary.markers) as f64,
         100.0 * summary.visible_both as f64 / (summary.frames * summary.markers) as f64,
+        100.0 * summary.detectable_both as f64 / (summary.frames * summary.markers) as f64,
         args.out.display(),
         secs,
         summary.frames as f64 / secs

@@ -21,7 +21,9 @@ mod session;
 pub mod target;
 
 pub use animation::AnimationParams;
-pub use session::{SessionSummary, render_session};
+pub use session::{
+    DETECTABLE_BORDER_PX, DotAppearance, SessionSummary, dot_appearance, render_session,
+};
 
 use std::path::PathBuf;
 
@@ -109,6 +111,13 @@ pub struct SynthParams {
     pub timecode_start: String,
     /// Timecode rate. Default 30 (60 fps cameras on 30 fps code: two sub-frames).
     pub timecode_rate: TimecodeRate,
+    /// Ground truth: smallest projected minor axis (full width) of a dot that counts as
+    /// detectable, pixels. Default 2: by the sampling theorem a feature narrower than two
+    /// pixels is not resolved as a shape, so a tracker cannot measure its width, tell it
+    /// from a crease or noise by area and roundness, or place its centre across the thin
+    /// axis better than the antialiasing of one pixel row. For the default 2.4 mm dots at
+    /// 225 mm (7.5 px across) this is a dot about 75° from facing the camera.
+    pub detectable_min_minor_axis_px: f64,
 }
 
 impl Default for SynthParams {
@@ -132,6 +141,7 @@ impl Default for SynthParams {
             seed: 7,
             timecode_start: "01:00:00:00".into(),
             timecode_rate: TimecodeRate::FPS_30,
+            detectable_min_minor_axis_px: 2.0,
         }
     }
 }
@@ -173,6 +183,11 @@ impl SynthParams {
         check(self.slip_mm >= 0.0 && self.slip_mm < 50.0, "slip_mm")?;
         check(self.slip_deg >= 0.0 && self.slip_deg < 30.0, "slip_deg")?;
         check(self.slip_period_secs > 0.0, "slip_period_secs")?;
+        check(
+            self.detectable_min_minor_axis_px.is_finite()
+                && self.detectable_min_minor_axis_px >= 0.0,
+            "detectable_min_minor_axis_px",
+        )?;
         self.start_timecode().map(|_| ())
     }
 

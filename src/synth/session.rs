@@ -29,6 +29,8 @@ pub struct SessionSummary {
     pub visible_cam1: usize,
     /// Marker observations visible in both cameras.
     pub visible_both: usize,
+    /// Marker observations detectable in both cameras (see [`DotAppearance::detectable`]).
+    pub detectable_both: usize,
 }
 
 /// Ground truth of one frame (rows of the gt CSV files, without headers).
@@ -36,7 +38,7 @@ struct FrameTruth {
     bundles: String,
     head_pose: String,
     projections: String,
-    visible: [usize; 3],
+    visible: [usize; 4],
 }
 
 fn write_text(path: &Path, text: &str) -> Result<(), SynthError> {
@@ -60,12 +62,157 @@ fn mkdir(path: &Path) -> Result<(), SynthError> {
 /// this distance of it (mm).
 const VISIBILITY_TOLERANCE_MM: f64 = 0.6;
 
+/// Points sampled on a dot's rim for its detectability (every 22.5°).
+const RIM_SAMPLES: usize = 16;
+
+/// How a painted dot appears in one camera: the measurements behind the `detectable`
+/// column of `gt/projections.csv`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DotAppearance {
+    /// Angle between the skin normal at the dot and the direction to the camera, degrees.
+    pub view_angle_deg: f64,
+    /// Full minor axis of the dot's projected ellipse, pixels: `2·√(2·λ_min)` of the
+    /// covariance of its projected rim (a rim sampled uniformly in angle has variance
+    /// `a²/2` along a semi-axis `a`), through the full lens model.
+    pub minor_axis_px: f64,
+    /// Full major axis, pixels (same construction).
+    pub major_axis_px: f64,
+    /// Share of the dot's samples (centre and rim) that pass the depth test: 1 when no
+    /// eyelid, lip or nose covers any part of it.
+    pub unoccluded_fraction: f64,
+    /// Every sample projects at least [`DETECTABLE_BORDER_PX`] inside the image.
+    pub inside_image: bool,
+}
+
+/// A dot whose rim comes closer than this to the image border is not detectable: the
+/// detector measures its background on a ring 3 px outside the blob.
+pub const DETECTABLE_BORDER_PX: f64 = 3.0;
+
+impl DotAppearance {
+    /// Whether a dot tracker can be expected to find this dot: unoccluded over its whole
+    /// disc, inside the image, and with a projected minor axis of at least
+    /// `min_minor_axis_px` (see [`SynthParams::detectable_min_minor_axis_px`]).
+    pub fn detectable(&self, min_minor_axis_px: f64) -> bool {
+        self.unoccluded_fraction >= 1.0
+            && self.inside_image
+            && self.view_angle_deg < 90.0
+            && self.minor_axis_px >= min_minor_axis_px
+    }
+}
+
+/// Depth test of a surface point `pc` (camera frame, mm) against the rendered depth at its
+/// nearest pixel: the drawn surface lies within [`VISIBILITY_TOLERANCE_MM`] plus the skin's
+/// depth change over 1.5 pixel footprints at the slant `tan_slant` (at least 1).
+fn passes_depth_test(
+    frags: &raster::Fragments,
+    pc: &Point3<f64>,
+    px: &nalgebra::Point2<f64>,
+    footprint_mm: f64,
+    tan_slant: f64,
+) -> bool {
+    if !(px.x > -0.5 && px.y > -0.5) {
+        return false;
+    }
+    let x = px.x.round() as usize;
+    let y = px.y.round() as usize;
+    if x >= frags.width || y >= frags.height {
+        return false;
+    }
+    let i = y * frags.width + x;
+    if frags.triangle[i] == raster::NO_TRIANGLE {
+        return false;
+    }
+    (f64::from(frags.depth[i]) - pc.z).abs()
+        < VISIBILITY_TOLERANCE_MM + 1.5 * footprint_mm * tan_slant.max(1.0)
+}
+
+/// Measures how the dot of radius `radius_mm` at `centre` (camera frame) with skin normal
+/// `normal` appears through `cam`, with occlusion from the rendered `frags`. `None` when
+/// the centre does not project.
+pub fn dot_appearance(
+    cam: &crate::camera::Camera,
+    frags: &raster::Fragments,
+    centre: &Point3<f64>,
+    normal: &Vector3<f64>,
+    radius_mm: f64,
+) -> Option<DotAppearance> {
+    let n = normal.try_normalize(1e-12)?;
+    let to_cam = -centre.coords.try_normalize(1e-12)?;
+    let cos = n.dot(&to_cam).clamp(-1.0, 1.0);
+    let view_angle_deg = cos.acos().to_degrees();
+    let tan_slant = (1.0 - cos * cos).max(0.0).sqrt() / cos.abs().max(1e-3);
+    let footprint_mm = centre.coords.norm() / cam.fx();
+    // A tangent basis of the disc.
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let t1 = n.cross(&helper).normalize();
+    let t2 = n.cross(&t1);
+    let (w, h) = (f64::from(cam.width_px), f64::from(cam.height_px));
+    let b = DETECTABLE_BORDER_PX;
+    let inside = |p: &nalgebra::Point2<f64>| {
+        p.x >= b - 0.5 && p.y >= b - 0.5 && p.x <= w - 0.5 - b && p.y <= h - 0.5 - b
+    };
+    let centre_px = cam.project(&centre.coords)?;
+    let mut inside_image = inside(&centre_px);
+    let mut passed = usize::from(passes_depth_test(
+        frags,
+        centre,
+        &centre_px,
+        footprint_mm,
+        tan_slant,
+    ));
+    let mut samples = 1usize;
+    let mut rim = Vec::with_capacity(RIM_SAMPLES);
+    for k in 0..RIM_SAMPLES {
+        let phi = std::f64::consts::TAU * k as f64 / RIM_SAMPLES as f64;
+        let p = centre + radius_mm * (phi.cos() * t1 + phi.sin() * t2);
+        samples += 1;
+        let Some(px) = cam.project(&p.coords) else {
+            inside_image = false;
+            continue;
+        };
+        inside_image &= inside(&px);
+        passed += usize::from(passes_depth_test(frags, &p, &px, footprint_mm, tan_slant));
+        rim.push(px);
+    }
+    let (minor_axis_px, major_axis_px) = if rim.len() == RIM_SAMPLES {
+        let m = rim.len() as f64;
+        let (mx, my) = (
+            rim.iter().map(|p| p.x).sum::<f64>() / m,
+            rim.iter().map(|p| p.y).sum::<f64>() / m,
+        );
+        let (mut a, mut bb, mut c) = (0.0, 0.0, 0.0);
+        for p in &rim {
+            a += (p.x - mx).powi(2) / m;
+            bb += (p.y - my).powi(2) / m;
+            c += (p.x - mx) * (p.y - my) / m;
+        }
+        let disc = ((a - bb).powi(2) / 4.0 + c * c).sqrt();
+        let (l1, l2) = ((a + bb) / 2.0 + disc, ((a + bb) / 2.0 - disc).max(0.0));
+        (2.0 * (2.0 * l2).sqrt(), 2.0 * (2.0 * l1).sqrt())
+    } else {
+        (0.0, 0.0)
+    };
+    Some(DotAppearance {
+        view_angle_deg,
+        minor_axis_px,
+        major_axis_px,
+        unoccluded_fraction: passed as f64 / samples as f64,
+        inside_image,
+    })
+}
+
 /// Renders `weights.len()` frames of `performer` wearing `layout`, seen by `rig`, into the
 /// session folder `out` (created; existing files are overwritten):
 /// `session.toml`, `calibration.yaml` (the rig), `frames.csv`, `cam0/`, `cam1/` PNGs and
 /// `gt/` with `bundles.csv` (`frame,marker,x,y,z`, head frame, mm, every marker every frame,
 /// plus `visible0,visible1`), `head_pose.csv` (`frame,qw,qx,qy,qz,tx,ty,tz`: head → cam0,
-/// mm), `projections.csv` (`frame,camera,marker,u,v,visible`, pixels), `weights.csv`, and
+/// mm), `projections.csv` (`frame,camera,marker,u,v,visible`, pixels, then
+/// `view_angle_deg,minor_axis_px,unoccluded,detectable` from [`dot_appearance`]: a dot is
+/// detectable when visible and [`DotAppearance::detectable`]), `weights.csv`, and
 /// with `write_meshes` one OBJ per frame under `gt/mesh/`. Frames render in parallel;
 /// `progress` is called once per finished frame.
 ///
@@ -237,11 +384,12 @@ pub fn render_session(
         // Ground truth.
         let mut bundles = String::new();
         let mut projections = String::new();
-        let mut visible = [0usize; 3];
+        let mut visible = [0usize; 4];
         for m in &layout.markers {
             let v = m.vertex as usize;
             let p = positions[v];
             let mut vis = [false; 2];
+            let mut detectable = [false; 2];
             for (c, cam) in cams.iter().enumerate() {
                 let cam_from_head = if c == 0 {
                     cam0_from_head
@@ -271,18 +419,29 @@ pub fn render_session(
                     }
                 }
                 vis[c] = seen;
+                let look = centre_views[c].as_ref().and_then(|frags| {
+                    dot_appearance(cam, frags, &pc, &nc, params.marker_radius_mm)
+                });
+                let det =
+                    look.is_some_and(|a| seen && a.detectable(params.detectable_min_minor_axis_px));
+                detectable[c] = det;
+                let (angle, minor, unocc) = look.map_or((90.0, 0.0, 0.0), |a| {
+                    (a.view_angle_deg, a.minor_axis_px, a.unoccluded_fraction)
+                });
                 let _ = writeln!(
                     projections,
-                    "{f},cam{c},{},{:.4},{:.4},{}",
+                    "{f},cam{c},{},{:.4},{:.4},{},{angle:.2},{minor:.3},{unocc:.3},{}",
                     m.name,
                     px.x,
                     px.y,
-                    u8::from(seen)
+                    u8::from(seen),
+                    u8::from(det)
                 );
             }
             visible[0] += usize::from(vis[0]);
             visible[1] += usize::from(vis[1]);
             visible[2] += usize::from(vis[0] && vis[1]);
+            visible[3] += usize::from(detectable[0] && detectable[1]);
             let _ = writeln!(
                 bundles,
                 "{f},{},{:.5},{:.5},{:.5},{},{}",
@@ -344,13 +503,16 @@ pub fn render_session(
     write_text(&out.join("frames.csv"), &frames)?;
     let mut bundles = String::from("frame,marker,x,y,z,visible0,visible1\n");
     let mut poses = String::from("frame,qw,qx,qy,qz,tx,ty,tz\n");
-    let mut projections = String::from("frame,camera,marker,u,v,visible\n");
+    let mut projections = String::from(
+        "frame,camera,marker,u,v,visible,view_angle_deg,minor_axis_px,unoccluded,detectable\n",
+    );
     let mut summary = SessionSummary {
         frames: weights.len(),
         markers: layout.len(),
         visible_cam0: 0,
         visible_cam1: 0,
         visible_both: 0,
+        detectable_both: 0,
     };
     for t in &truths {
         bundles.push_str(&t.bundles);
@@ -359,6 +521,7 @@ pub fn render_session(
         summary.visible_cam0 += t.visible[0];
         summary.visible_cam1 += t.visible[1];
         summary.visible_both += t.visible[2];
+        summary.detectable_both += t.visible[3];
     }
     write_text(&out.join("gt/bundles.csv"), &bundles)?;
     write_text(&out.join("gt/head_pose.csv"), &poses)?;

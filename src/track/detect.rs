@@ -9,7 +9,11 @@
 //!    times (the nested regions of MSER, Matas et al. 2002).
 //! 4. Filters: area, roundness `√(λ_min/λ_max)` of the second moments, and contrast against
 //!    the median of a ring of background around the blob (which rejects the dark halo that a
-//!    specular highlight leaves in the local mean, and soft shading gradients).
+//!    specular highlight leaves in the local mean, and soft shading gradients). A dot on
+//!    skin slanted far from the camera projects to a thin ellipse (minor/major = cos of the
+//!    slant): a blob below the roundness limit is still kept, at depth 0 of the splitting,
+//!    when its full axes `4√λ` say it is no longer than a dot and wide enough to be
+//!    resolved, and its ink is clearly darker than a crease.
 //! 5. Subpixel centre: centroid weighted by `max(0, B − I)` (`B` the ring median) over the
 //!    blob's box grown by two pixels, so the antialiased rim counts.
 
@@ -36,6 +40,27 @@ pub struct DetectParams {
     /// Smallest roundness `√(λ_min/λ_max)` (1: a disc; foreshortened dots on the sides of
     /// the face reach 0.3). Default 0.3.
     pub min_roundness: f64,
+    /// Foreshortened dots: a blob less round than [`DetectParams::min_roundness`] is still
+    /// a dot when it is an ellipse no longer than a dot's diameter and wide enough to be
+    /// resolved (see the `elongated_*` fields). Default true.
+    pub accept_elongated: bool,
+    /// Longest elongated blob accepted: the full major axis `4√λ_max` of its pixels,
+    /// pixels. A dot seen edge-on is as long as its diameter (2.4 mm dots at 180-260 mm
+    /// through a 700 px lens: 6.5-9.5 px, plus a pixel of antialiased rim); a crease or
+    /// the mouth line is longer. Default 12.
+    pub elongated_max_length_px: f64,
+    /// Narrowest elongated blob accepted: the full minor axis `4√λ_min` of its pixels,
+    /// pixels. Two rows of pixels give 2.3 (`4·√(1/4 + 1/12)`), one row 1.15: the default
+    /// asks for a blob at least two pixels across, the least a width can be measured on
+    /// (the thresholded blob is about a pixel wider than the ink). Default 2.
+    pub elongated_min_width_px: f64,
+    /// Smallest roundness of an elongated blob (0.15: a disc seen about 81° from its
+    /// normal). Default 0.15.
+    pub elongated_min_roundness: f64,
+    /// Smallest peak contrast of an elongated blob, in units of
+    /// [`DetectParams::min_peak_contrast_dn`] (ink is much darker than a crease or a
+    /// shading band). Default 2.
+    pub elongated_min_contrast_factor: f64,
     /// Region of interest `(x0, y0, x1, y1)`, pixels, end exclusive (None: whole image).
     pub roi: Option<(u32, u32, u32, u32)>,
 }
@@ -50,6 +75,11 @@ impl Default for DetectParams {
             min_area_px: 3,
             max_area_px: 300,
             min_roundness: 0.3,
+            accept_elongated: true,
+            elongated_max_length_px: 12.0,
+            elongated_min_width_px: 2.0,
+            elongated_min_roundness: 0.15,
+            elongated_min_contrast_factor: 2.0,
             roi: None,
         }
     }
@@ -72,6 +102,20 @@ impl DetectParams {
         }
         if !(0.0..=1.0).contains(&self.min_roundness) {
             return Err("min_roundness must be in [0, 1]".into());
+        }
+        if !(0.0..=1.0).contains(&self.elongated_min_roundness) {
+            return Err("elongated_min_roundness must be in [0, 1]".into());
+        }
+        if !(self.elongated_max_length_px.is_finite() && self.elongated_max_length_px > 0.0) {
+            return Err("elongated_max_length_px must be positive".into());
+        }
+        if !(self.elongated_min_width_px.is_finite() && self.elongated_min_width_px >= 0.0) {
+            return Err("elongated_min_width_px must be non-negative".into());
+        }
+        if !(self.elongated_min_contrast_factor.is_finite()
+            && self.elongated_min_contrast_factor >= 0.0)
+        {
+            return Err("elongated_min_contrast_factor must be non-negative".into());
         }
         if let Some((x0, y0, x1, y1)) = self.roi
             && (x0 >= x1 || y0 >= y1)
@@ -474,7 +518,13 @@ fn measure_blob(
     } else {
         0.0
     };
-    if roundness < params.min_roundness {
+    let elongated = roundness < params.min_roundness;
+    if elongated
+        && !(params.accept_elongated
+            && roundness >= params.elongated_min_roundness
+            && 4.0 * l1.sqrt() <= params.elongated_max_length_px
+            && 4.0 * l2.max(0.0).sqrt() >= params.elongated_min_width_px)
+    {
         return None;
     }
     let (bx0, by0, bx1, by1) = pixels.iter().fold(
@@ -503,7 +553,9 @@ fn measure_blob(
         .iter()
         .map(|&(x, y, _)| sign * (background - f64::from(image.data[y * w + x])))
         .fold(f64::MIN, f64::max);
-    if peak < params.min_peak_contrast_dn {
+    if peak < params.min_peak_contrast_dn
+        || (elongated && peak < params.elongated_min_contrast_factor * params.min_peak_contrast_dn)
+    {
         return None;
     }
     // Weighted centroid over the box grown by 2.
@@ -583,6 +635,75 @@ mod tests {
             assert!(err < 0.05, "{err}");
             assert!(d.quality > 0.3 && d.roundness > 0.8, "{d:?}");
         }
+    }
+
+    /// A gradient-lit image with antialiased dark ellipses `(cx, cy, a, b, angle)`:
+    /// semi-axes `a`, `b` (pixels), major axis at `angle` radians from the x axis.
+    fn image_with_ellipses(ellipses: &[(f64, f64, f64, f64, f64)]) -> GrayImage {
+        let (w, h) = (200u32, 120u32);
+        let mut data = vec![0u8; (w * h) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let mut v = 90.0 + 100.0 * f64::from(x) / f64::from(w);
+                for &(cx, cy, a, b, angle) in ellipses {
+                    let (sn, cs) = angle.sin_cos();
+                    let mut cov = 0.0;
+                    for sy in 0..8 {
+                        for sx in 0..8 {
+                            let dx = f64::from(x) - 0.4375 + 0.125 * f64::from(sx) - cx;
+                            let dy = f64::from(y) - 0.4375 + 0.125 * f64::from(sy) - cy;
+                            let (u, t) = (cs * dx + sn * dy, -sn * dx + cs * dy);
+                            if (u / a).powi(2) + (t / b).powi(2) < 1.0 {
+                                cov += 1.0 / 64.0;
+                            }
+                        }
+                    }
+                    v = v + (15.0 - v) * cov;
+                }
+                data[(y * w + x) as usize] = v.round() as u8;
+            }
+        }
+        GrayImage {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn finds_foreshortened_dots_but_not_creases() {
+        // Dots of radius 3.75 px seen 76°, 79° and 80° from their normal (minor/major
+        // 0.24, 0.19, 0.17), at subpixel centres, in three directions.
+        let dots = [
+            (40.3, 30.6, 3.75, 3.75 * 76f64.to_radians().cos(), 0.3),
+            (100.7, 60.2, 3.75, 3.75 * 79f64.to_radians().cos(), 1.9),
+            (160.45, 90.8, 3.75, 3.75 * 80f64.to_radians().cos(), 0.0),
+        ];
+        let img = image_with_ellipses(&dots);
+        let mut found = detect_markers(&img, &DetectParams::default());
+        found.sort_by(|a, b| a.centre_px.x.total_cmp(&b.centre_px.x));
+        assert_eq!(found.len(), 3, "{found:?}");
+        for (d, &(cx, cy, ..)) in found.iter().zip(&dots) {
+            let err = (d.centre_px - Point2::new(cx, cy)).norm();
+            assert!(err < 0.1, "{err} {d:?}");
+        }
+        // Without the elongated rule thin ones are rejected by roundness.
+        let strict = DetectParams {
+            accept_elongated: false,
+            ..Default::default()
+        };
+        assert!(detect_markers(&img, &strict).len() < 3);
+        // A crease-like dark streak 20 px long and 2 px wide, and a faint short one
+        // (contrast of a shading band): neither is a dot.
+        let streaks = image_with_ellipses(&[(60.0, 40.0, 10.0, 1.0, 0.5)]);
+        assert!(detect_markers(&streaks, &DetectParams::default()).is_empty());
+        let mut faint = image_with_ellipses(&[]);
+        let ink = image_with_ellipses(&[(120.0, 60.0, 3.75, 0.8, 0.0)]);
+        for (f, i) in faint.data.iter_mut().zip(&ink.data) {
+            // A fifth of the ink's darkness.
+            *f = (f64::from(*f) - 0.2 * (f64::from(*f) - f64::from(*i))).round() as u8;
+        }
+        assert!(detect_markers(&faint, &DetectParams::default()).is_empty());
     }
 
     #[test]

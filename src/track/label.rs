@@ -25,7 +25,9 @@
 //!    gated bipartite graph). An assignment with a rival (another detection near the
 //!    prediction, or another prediction near the detection) is in doubt.
 //! 3. Left/right pairing under the epipolar constraint: a marker's two detections must
-//!    triangulate within [`LabelParams::max_reprojection_px`] and land near the 3D
+//!    triangulate within the epipolar gate ([`super::gate`]: `k` robust standard
+//!    deviations of the residuals of confidently labeled markers, at least
+//!    [`LabelParams::max_reprojection_px`]) and land near the 3D
 //!    prediction. A marker in doubt in one camera is kept only when exactly one of its
 //!    candidate pairs passes both tests; otherwise it is dropped for the frame (a wrong
 //!    label is worse than a missing one).
@@ -43,6 +45,7 @@
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 
 use super::Detection;
+use super::gate::{EpipolarGate, EpipolarGateParams};
 use crate::align::horn_alignment;
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
@@ -97,8 +100,13 @@ pub struct LabelParams {
     /// See [`LabelParams::ambiguity_ratio`], pixels. Default 2.
     pub ambiguity_margin_px: f64,
     /// Largest RMS reprojection error of a labeled marker's two detections (the epipolar
-    /// gate), pixels. Default 0.6.
+    /// gate) before the centroid noise is measured, and its floor afterwards, pixels.
+    /// Default 0.6.
     pub max_reprojection_px: f64,
+    /// Scaling of the epipolar gate with the measured centroid noise (its `floor_px` is
+    /// replaced by [`LabelParams::max_reprojection_px`]). Default
+    /// [`EpipolarGateParams::default`].
+    pub epipolar_gate: EpipolarGateParams,
     /// The 3D gate around the prediction, as a multiple of the pixel gate's size at the
     /// marker's depth. Default 1.5.
     pub gate_3d_factor: f64,
@@ -140,6 +148,7 @@ impl Default for LabelParams {
             ambiguity_ratio: 2.0,
             ambiguity_margin_px: 2.0,
             max_reprojection_px: 0.6,
+            epipolar_gate: EpipolarGateParams::default(),
             gate_3d_factor: 1.5,
             velocity_damping: 0.8,
             lost_min_markers: 6,
@@ -217,6 +226,12 @@ impl LabelParams {
         }
         non_negative(self.ambiguity_margin_px, "ambiguity_margin_px")?;
         positive(self.max_reprojection_px, "max_reprojection_px")?;
+        EpipolarGateParams {
+            floor_px: self.max_reprojection_px,
+            ceiling_px: self.epipolar_gate.ceiling_px.max(self.max_reprojection_px),
+            ..self.epipolar_gate.clone()
+        }
+        .validate()?;
         positive(self.gate_3d_factor, "gate_3d_factor")?;
         if !(0.0..=1.0).contains(&self.velocity_damping) {
             return Err("velocity_damping must be in [0, 1]".into());
@@ -327,6 +342,9 @@ pub struct Labeler {
     last_frame: Option<usize>,
     lost_count: usize,
     rois: [Option<(u32, u32, u32, u32)>; 2],
+    /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
+    /// the noise belongs to the cameras, not the tracks).
+    gate: EpipolarGate,
 }
 
 /// A marker's prediction for one labeling pass.
@@ -344,6 +362,8 @@ struct Label {
     marker: usize,
     det: [usize; 2],
     bundle: Bundle,
+    /// Assigned without a rival in either camera (its residual feeds the gate estimate).
+    confident: bool,
 }
 
 /// Result of one labeling pass.
@@ -435,7 +455,6 @@ impl Labeler {
             rig,
             neutral: neutral_markers_head,
             stabilize,
-            params,
             distances,
             pair_table,
             score_order,
@@ -446,12 +465,28 @@ impl Labeler {
             last_frame: None,
             lost_count: 0,
             rois: [None, None],
+            gate: EpipolarGate::new(EpipolarGateParams {
+                floor_px: params.max_reprojection_px,
+                ceiling_px: params
+                    .epipolar_gate
+                    .ceiling_px
+                    .max(params.max_reprojection_px),
+                ..params.epipolar_gate.clone()
+            }),
+            params,
         })
     }
 
     /// The settings.
     pub fn params(&self) -> &LabelParams {
         &self.params
+    }
+
+    /// The current epipolar gate (largest RMS reprojection error of a labeled marker),
+    /// pixels, and the measured robust scale of the residuals it comes from (None until
+    /// enough markers were labeled).
+    pub fn epipolar_gate(&self) -> (f64, Option<f64>) {
+        (self.gate.gate_px(), self.gate.sigma_px())
     }
 
     /// The head pose (head → cam0) of the last labeled frame; None while acquiring.
@@ -522,6 +557,12 @@ impl Labeler {
         };
         stats.paired = stats.paired.max(pass.paired);
         stats.rejected += pass.rejected;
+        self.gate.update(
+            pass.labels
+                .iter()
+                .filter(|l| l.confident)
+                .map(|l| l.bundle.reprojection_px),
+        );
         let mut seen = vec![false; m];
         let inverse = pose.inverse();
         for l in &pass.labels {
@@ -770,7 +811,7 @@ impl Labeler {
             }
         }
         let tri = TriangulateParams {
-            max_reprojection_px: p.max_reprojection_px,
+            max_reprojection_px: self.gate.gate_px(),
             ..p.pair.triangulate.clone()
         };
         let check = |i: usize, a: usize, b: usize| -> Option<Bundle> {
@@ -799,6 +840,7 @@ impl Labeler {
                             marker: i,
                             det: [a, b],
                             bundle,
+                            confident: true,
                         });
                     }
                     None => rejected += 1,
@@ -826,6 +868,7 @@ impl Labeler {
                             marker: i,
                             det: [a, b],
                             bundle,
+                            confident: false,
                         });
                     }
                 }

@@ -5,7 +5,9 @@
 //! [`crate::align`] and [`crate::dataset`] (marker layouts).
 
 pub mod detect;
+pub mod gate;
 pub mod label;
 
 pub use detect::{DetectParams, Detection, MarkerDetector, detect_markers};
+pub use gate::{EpipolarGate, EpipolarGateParams};
 pub use label::{LabelError, LabelParams, LabelStats, LabeledFrame, LabeledMarker, Labeler};
