@@ -281,8 +281,10 @@ pub struct LgiSolver {
 /// cluster's markers left out of the diagram).
 #[derive(Debug)]
 struct ClusterWeights {
-    /// `(vertex, weights)` for every vertex with weight on a marker of the cluster.
-    weights: Vec<(u32, Vec<(u32, f64)>)>,
+    /// Every vertex with weight on a marker of the cluster.
+    vertices: Vec<u32>,
+    /// Their weights, in the same order.
+    weights: natural_neighbor::SharedWeights,
 }
 
 /// Blending weights of the vertices affected by a frame's missing markers.
@@ -574,11 +576,15 @@ impl LgiSolver {
                 acc[v as usize] += r * lam;
             }
         }
-        for (v, ws) in missing
-            .iter()
-            .flat_map(|mw| mw.clusters.iter().flat_map(|c| c.weights.iter()))
-        {
-            let v = *v as usize;
+        for (v, ws) in missing.iter().flat_map(|mw| {
+            mw.clusters.iter().flat_map(|c| {
+                c.vertices
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &v)| (v, c.weights.of(k)))
+            })
+        }) {
+            let v = v as usize;
             let mut a = Vector3::zeros();
             for &(m, lam) in ws {
                 let m = m as usize;
@@ -632,10 +638,8 @@ impl LgiSolver {
             for &m in &cluster {
                 present_c[m as usize] = false;
             }
-            let new = index.weights.recompute(&present_c, &vertices)?;
-            let w = Arc::new(ClusterWeights {
-                weights: vertices.into_iter().zip(new).collect(),
-            });
+            let weights = index.weights.recompute_shared(&present_c, &vertices)?;
+            let w = Arc::new(ClusterWeights { vertices, weights });
             if self.cluster_cache.len() >= CLUSTER_CACHE {
                 // Forget the least recently used cluster.
                 if let Some(oldest) = self

@@ -250,21 +250,21 @@ impl NaturalNeighborWeights {
         let count = present.len();
         let is_missing = |m: u32| !present.get(m as usize).copied().unwrap_or(true);
         let mut parent: Vec<u32> = (0..count as u32).collect();
-        let mut owner: std::collections::HashMap<u32, u32> = Default::default();
+        // The first missing marker met on each (source) vertex; u32::MAX: none yet.
+        let mut owner = vec![u32::MAX; self.source.len()];
         for m in (0..count as u32).filter(|&m| is_missing(m)) {
             for &nb in self.neighbors.get(m as usize).map_or(&[][..], |n| n) {
                 if is_missing(nb) {
                     union(&mut parent, m, nb);
                 }
             }
+            // Vertices that copy a source have its weights: the sources decide.
             for &(v, _) in supports.get(m as usize).copied().unwrap_or_default() {
-                match owner.entry(v) {
-                    std::collections::hash_map::Entry::Occupied(o) => {
-                        union(&mut parent, m, *o.get())
-                    }
-                    std::collections::hash_map::Entry::Vacant(e) => {
-                        e.insert(m);
-                    }
+                let v = self.source.get(v as usize).copied().unwrap_or(v) as usize;
+                match owner.get(v).copied() {
+                    Some(u32::MAX) => owner[v] = m,
+                    Some(other) => union(&mut parent, m, other),
+                    None => {}
                 }
             }
         }
@@ -287,27 +287,77 @@ impl NaturalNeighborWeights {
         present: &[bool],
         vertices: &[u32],
     ) -> Result<Vec<Vec<(u32, f64)>>, NaturalNeighborError> {
+        let shared = self.recompute_shared(present, vertices)?;
+        Ok((0..vertices.len()).map(|k| shared.of(k).to_vec()).collect())
+    }
+
+    /// As [`Self::recompute`], with the weights of vertices that copy the same source
+    /// stored once.
+    ///
+    /// # Errors
+    /// [`NaturalNeighborError::NoMarkers`] when no marker is present.
+    pub fn recompute_shared(
+        &self,
+        present: &[bool],
+        vertices: &[u32],
+    ) -> Result<SharedWeights, NaturalNeighborError> {
         let tri = triangulate(&self.marker_uv, present)?;
         let nn = tri.natural_neighbor();
         let mut buf = Vec::new();
         // Many vertices copy the same source (the non-face parts of the head): one query
         // per distinct source.
-        let mut done: std::collections::HashMap<u32, usize> = Default::default();
-        let mut out: Vec<Vec<(u32, f64)>> = Vec::with_capacity(vertices.len());
+        let mut done: std::collections::HashMap<u32, u32> = Default::default();
+        let mut out = SharedWeights {
+            slot: Vec::with_capacity(vertices.len()),
+            offsets: vec![0],
+            entries: Vec::new(),
+        };
         for &v in vertices {
             let s = self.source[v as usize];
-            match done.get(&s) {
-                Some(&k) => {
-                    let w = out[k].clone();
-                    out.push(w);
-                }
+            let slot = match done.get(&s) {
+                Some(&k) => k,
                 None => {
-                    done.insert(s, out.len());
-                    out.push(weights_at(&tri, &nn, self.uv[s as usize], &mut buf));
+                    let k = (out.offsets.len() - 1) as u32;
+                    done.insert(s, k);
+                    out.entries
+                        .extend(weights_at(&tri, &nn, self.uv[s as usize], &mut buf));
+                    out.offsets.push(out.entries.len() as u32);
+                    k
                 }
-            }
+            };
+            out.slot.push(slot);
         }
         Ok(out)
+    }
+}
+
+/// Weights of a list of vertices, those of vertices that copy the same source stored once
+/// ([`NaturalNeighborWeights::recompute_shared`]).
+#[derive(Debug, Clone, Default)]
+pub struct SharedWeights {
+    /// Per vertex of the list, its slot.
+    slot: Vec<u32>,
+    /// Start of each slot's entries in `entries` (#slots + 1).
+    offsets: Vec<u32>,
+    /// `(marker, λ)` pairs.
+    entries: Vec<(u32, f64)>,
+}
+
+impl SharedWeights {
+    /// Weights of the `k`-th vertex of the list.
+    pub fn of(&self, k: usize) -> &[(u32, f64)] {
+        let slot = self.slot[k] as usize;
+        &self.entries[self.offsets[slot] as usize..self.offsets[slot + 1] as usize]
+    }
+
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.slot.len()
+    }
+
+    /// Whether the list is empty.
+    pub fn is_empty(&self) -> bool {
+        self.slot.is_empty()
     }
 }
 
