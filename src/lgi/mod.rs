@@ -296,10 +296,12 @@ struct MissingWeights {
     clusters: Vec<Arc<ClusterWeights>>,
 }
 
-/// Number of missing-marker clusters whose weights are kept. A cluster's entry holds the
-/// weights of a few hundred vertices; every single marker of a 120-marker layout fits,
-/// with room for the recurring groups (an eyelid, the lips).
-const CLUSTER_CACHE: usize = 512;
+/// Number of missing-marker clusters whose weights are kept. An entry holds the weights
+/// of the vertices its markers influence: a few hundred for a marker inside the face, up
+/// to ~10,000 (~200 kB) for a group on the face border, whose weights the back of the
+/// head copies. Every single marker of a 120-marker layout fits, with room for the
+/// recurring groups (an eyelid, the lips, the chin line); at most ~50 MB.
+const CLUSTER_CACHE: usize = 256;
 
 impl LgiSolver {
     /// Builds the index of `dataset` for `layout` and a solver over it.

@@ -51,6 +51,12 @@ pub struct PipelineConfig {
     /// Frames each channel holds. Default 4: enough to absorb jitter between stages,
     /// small enough to keep latency and memory (two images per frame) bounded.
     pub channel_capacity: usize,
+    /// Frames a live source may have waiting at the pipeline's entrance. Default 1: when
+    /// the first stage is still busy with an earlier frame (the face acquisition at the
+    /// start, a slow frame), a newer frame than the one waiting is dropped at the source
+    /// and counted, so the pipeline does not work through a backlog of stale frames and
+    /// its latency recovers within a frame. Replays ignore it (they never drop).
+    pub live_entry_capacity: usize,
     /// Gap-filled bundles: confidence halves every this many frames since the marker was
     /// last observed. Default 15.
     pub gap_fill_half_life_frames: f64,
@@ -84,6 +90,7 @@ impl PipelineConfig {
             face_vertices: None,
             ground_truth: None,
             channel_capacity: 4,
+            live_entry_capacity: 1,
             gap_fill_half_life_frames: 15.0,
             name: "take".into(),
             timecode_rate: None,
@@ -175,6 +182,7 @@ pub fn run(
         face_vertices,
         ground_truth,
         channel_capacity,
+        live_entry_capacity,
         gap_fill_half_life_frames,
         name,
         timecode_rate,
@@ -243,7 +251,12 @@ pub fn run(
     }
     let started = Instant::now();
 
-    let (to_track, track_in) = bounded::<Box<FrameResult>>(capacity);
+    let entry_capacity = if live {
+        live_entry_capacity.clamp(1, capacity)
+    } else {
+        capacity
+    };
+    let (to_track, track_in) = bounded::<Box<FrameResult>>(entry_capacity);
     let (to_stabilize, stabilize_in) = bounded::<Box<FrameResult>>(capacity);
     let (to_solve, solve_in) = bounded::<Box<FrameResult>>(capacity);
     let (to_enhance, enhance_in) = bounded::<Box<FrameResult>>(capacity);
