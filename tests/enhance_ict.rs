@@ -52,11 +52,12 @@ fn ict_low_passed_combinations_get_their_details_back() {
             .zip(truth)
             .map(|(p, q)| Point3::from(p - q))
             .collect();
-        let low = enhancer.low_pass().apply(&diff).unwrap();
-        let h: Vec<Point3<f64>> = diff
-            .iter()
-            .zip(&low)
-            .map(|(p, q)| Point3::from(p - q))
+        let h: Vec<Point3<f64>> = enhancer
+            .low_pass()
+            .high_band(&diff)
+            .unwrap()
+            .into_iter()
+            .map(Point3::from)
             .collect();
         rms(&h, &vec![Point3::origin(); h.len()], &face)
     };

@@ -102,11 +102,12 @@ fn errors(enhancer: &Enhancer, x: &[Point3<f64>], truth: &[Point3<f64>], n: usiz
         .zip(truth)
         .map(|(p, q)| Point3::from(p - q))
         .collect();
-    let low = enhancer.low_pass().apply(&diff).unwrap();
-    let high: Vec<Point3<f64>> = diff
-        .iter()
-        .zip(&low)
-        .map(|(p, q)| Point3::from(p - q))
+    let high: Vec<Point3<f64>> = enhancer
+        .low_pass()
+        .high_band(&diff)
+        .unwrap()
+        .into_iter()
+        .map(Point3::from)
         .collect();
     let zero = vec![Point3::origin(); n];
     Errors {

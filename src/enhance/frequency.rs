@@ -164,6 +164,16 @@ impl LowPass {
         }
         Ok(out.into_iter().map(Point3::from).collect())
     }
+
+    /// The high band X − f(X) of `positions` (Eq. 1's split: what the low-pass removes),
+    /// as offsets per vertex, mm.
+    ///
+    /// # Errors
+    /// As [`LowPass::apply`].
+    pub fn high_band(&self, positions: &[Point3<f64>]) -> Result<Vec<Vector3<f64>>, EnhanceError> {
+        let low = self.apply(positions)?;
+        Ok(positions.iter().zip(&low).map(|(p, l)| p - l).collect())
+    }
 }
 
 #[cfg(test)]
@@ -194,6 +204,12 @@ mod tests {
         assert!(ripple < 0.05, "ripple left {ripple} mm");
         assert!(crest > 2.5, "bump crest {crest} mm");
         assert!(lp.apply(&mesh.positions[1..]).is_err());
+        // The high band is what the low-pass removed.
+        let high = lp.high_band(&mesh.positions).unwrap();
+        for ((h, p), q) in high.iter().zip(&mesh.positions).zip(&out) {
+            assert!((h - (p - q)).norm() < 1e-12);
+        }
+        assert!(lp.high_band(&mesh.positions[1..]).is_err());
     }
 
     fn out_mean_z(out: &[Point3<f64>], x: f64) -> f64 {

@@ -622,11 +622,9 @@ impl LgiSolver {
         let mut affected = vec![false; index.neutral.len()];
         let mut out = Vec::with_capacity(clusters.len());
         for cluster in clusters {
-            let mut vertices: Vec<u32> = Vec::new();
             for &m in &cluster {
                 for &(v, _) in supports[m as usize] {
                     affected[v as usize] = true;
-                    vertices.push(v);
                 }
             }
             if let Some((used, w)) = self.cluster_cache.get_mut(&cluster) {
@@ -634,6 +632,10 @@ impl LgiSolver {
                 out.push(Arc::clone(w));
                 continue;
             }
+            let mut vertices: Vec<u32> = cluster
+                .iter()
+                .flat_map(|&m| supports[m as usize].iter().map(|e| e.0))
+                .collect();
             vertices.sort_unstable();
             vertices.dedup();
             let mut present_c = vec![true; present.len()];

@@ -591,36 +591,14 @@ fn measure_blob(
 mod tests {
     use super::*;
 
-    /// A gradient-lit image with antialiased dark discs at known subpixel centres.
+    /// A gradient-lit image with antialiased dark discs `(cx, cy, r)` at known subpixel
+    /// centres.
     fn image_with_dots(dots: &[(f64, f64, f64)]) -> GrayImage {
-        let (w, h) = (200u32, 120u32);
-        let mut data = vec![0u8; (w * h) as usize];
-        for y in 0..h {
-            for x in 0..w {
-                let skin = 90.0 + 100.0 * f64::from(x) / f64::from(w);
-                let mut v = skin;
-                for &(cx, cy, r) in dots {
-                    // 4×4 supersampled coverage.
-                    let mut cov = 0.0;
-                    for sy in 0..4 {
-                        for sx in 0..4 {
-                            let px = f64::from(x) - 0.375 + 0.25 * f64::from(sx);
-                            let py = f64::from(y) - 0.375 + 0.25 * f64::from(sy);
-                            if (px - cx).hypot(py - cy) < r {
-                                cov += 1.0 / 16.0;
-                            }
-                        }
-                    }
-                    v = v + (15.0 - v) * cov;
-                }
-                data[(y * w + x) as usize] = v.round() as u8;
-            }
-        }
-        GrayImage {
-            width: w,
-            height: h,
-            data,
-        }
+        let discs: Vec<_> = dots
+            .iter()
+            .map(|&(cx, cy, r)| (cx, cy, r, r, 0.0))
+            .collect();
+        image_with_ellipses(&discs)
     }
 
     #[test]
