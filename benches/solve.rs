@@ -6,7 +6,8 @@
 //! Environment: `HELMCAP_BENCH_FRAMES` (static frames per condition, default 60),
 //! `HELMCAP_BENCH_RUNS` (timed runs per take, median reported, default 5),
 //! `HELMCAP_BENCH_ONLY` (comma-separated substrings of the dataset names to run, e.g.
-//! `all 53,actor`), `HELMCAP_BENCH_SMOOTH` (half-width of LGI's centred smoothing on the
+//! `all 53,actor`), `HELMCAP_BENCH_CONDITIONS` (comma-separated substrings of the
+//! condition names, e.g. `exact,missing`), `HELMCAP_BENCH_SMOOTH` (half-width of LGI's centred smoothing on the
 //! animated take, default 2), `HELMCAP_BENCH_RBF` (`thin_plate` or `biharmonic`: the RBF
 //! baseline's kernel), `HELMCAP_BENCH_METHODS` (comma-separated methods to run),
 //! `HELMCAP_BENCH_LGI` (LGI parameters as comma-separated TOML assignments).
@@ -34,6 +35,9 @@ fn main() {
     config.smooth = env_usize("HELMCAP_BENCH_SMOOTH", config.smooth);
     if let Ok(v) = std::env::var("HELMCAP_BENCH_ONLY") {
         config.only = v.split(',').map(|x| x.trim().to_string()).collect();
+    }
+    if let Ok(v) = std::env::var("HELMCAP_BENCH_CONDITIONS") {
+        config.conditions = v.split(',').map(|x| x.trim().to_string()).collect();
     }
     if let Ok(v) = std::env::var("HELMCAP_BENCH_METHODS") {
         config.methods = v

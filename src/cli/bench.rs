@@ -140,6 +140,10 @@ pub struct SolveBenchArgs {
     /// "pairs", "symmetric", "actor"); default every dataset.
     #[arg(long, value_delimiter = ',', value_name = "NAMES")]
     only: Vec<String>,
+    /// Conditions to run: comma-separated substrings of their names ("exact", "noise 0.3",
+    /// "noise 1", "missing", "animated"); default every condition.
+    #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+    conditions: Vec<String>,
     /// Methods to run (lgi, rbf, blendshape; comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "lgi,rbf,blendshape")]
     methods: Vec<String>,
@@ -181,6 +185,7 @@ fn solve_bench(a: SolveBenchArgs) -> anyhow::Result<()> {
         smooth: a.smooth,
         runs: a.runs.max(1),
         only: a.only.iter().map(|s| s.trim().to_string()).collect(),
+        conditions: a.conditions.iter().map(|s| s.trim().to_string()).collect(),
         methods,
         params,
         ict_manifest: Some(a.ict),

@@ -19,6 +19,42 @@ pub fn orient(a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>, d: &Point3<f64>
     (b - a).dot(&(c - a).cross(&(d - a)))
 }
 
+/// The points `[i, j, k]` of every triple index below [`NARROW_CODES`] (the inverse of
+/// [`triple_index`], the same for every cloud), built once.
+fn narrow_triples() -> &'static [[u8; 3]] {
+    static TABLE: std::sync::OnceLock<Vec<[u8; 3]>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut out = Vec::with_capacity(NARROW_CODES);
+        'fill: for k in 2..=255u8 {
+            for j in 1..k {
+                for i in 0..j {
+                    if out.len() == NARROW_CODES {
+                        break 'fill;
+                    }
+                    out.push([i, j, k]);
+                }
+            }
+        }
+        out
+    })
+}
+
+/// The corners (ascending) of the tetrahedron with face triples `faces` (see
+/// [`TripleTable::faces`]): `(a, b, c)` from the last face and `d` from the first, by
+/// table look-up when the triples are below [`NARROW_CODES`]; `None` otherwise.
+#[inline]
+pub fn corners_from_faces(faces: &[u32; 4]) -> Option<[u16; 4]> {
+    let table = narrow_triples();
+    let abc = table.get(faces[3] as usize)?;
+    let bcd = table.get(faces[0] as usize)?;
+    Some([
+        u16::from(abc[0]),
+        u16::from(abc[1]),
+        u16::from(abc[2]),
+        u16::from(bcd[2]),
+    ])
+}
+
 /// Index of the triple `i < j < k` in the combinatorial order of [`TripleTable`].
 #[inline]
 pub fn triple_index(i: usize, j: usize, k: usize) -> usize {
@@ -119,34 +155,97 @@ impl TetScan {
         self.masks.is_empty()
     }
 
+    /// The face triples of tetrahedron `t` (see [`TripleTable::faces`]).
+    #[inline]
+    pub fn faces(&self, t: usize) -> [u32; 4] {
+        if self.wide.is_empty() {
+            self.narrow[t].map(u32::from)
+        } else {
+            self.wide[t]
+        }
+    }
+
     /// Whether tetrahedron `t` passes the sign pre-test against `codes`.
     #[inline]
     pub fn may_contain(&self, codes: &[u8], t: usize) -> bool {
         let m = self.masks[t];
-        let f = if self.wide.is_empty() {
-            self.narrow[t].map(usize::from)
-        } else {
-            self.wide[t].map(|x| x as usize)
-        };
+        let f = self.faces(t).map(|x| x as usize);
         sign_ok(codes, f, m)
     }
 
-    /// Calls `hit` with every tetrahedron passing the pre-test against `codes`, ascending.
+    /// Calls `hit(t, faces)` with every tetrahedron `t` passing the pre-test against
+    /// `codes`, ascending, and its face triples.
+    ///
+    /// The pre-test runs branch-free over blocks of 64 tetrahedra into a bit mask, and
+    /// only the set bits are visited: most tetrahedra fail, and a branch per tetrahedron
+    /// mispredicts often. With 16-bit triples and at least [`NARROW_CODES`] codes (as
+    /// [`TripleTable::fill_used_coded`] leaves them), the look-ups need no bounds checks.
     #[inline]
-    pub fn for_each_candidate(&self, codes: &[u8], mut hit: impl FnMut(usize)) {
+    pub fn for_each_candidate(&self, codes: &[u8], mut hit: impl FnMut(usize, [u32; 4])) {
         if self.wide.is_empty() {
-            for (t, (f, &m)) in self.narrow.iter().zip(&self.masks).enumerate() {
-                if sign_ok(codes, f.map(usize::from), m) {
-                    hit(t);
-                }
+            if let Some(codes) = codes
+                .get(..NARROW_CODES)
+                .and_then(|c| <&[u8; NARROW_CODES]>::try_from(c).ok())
+            {
+                for_each_in_blocks(&self.narrow, &self.masks, &mut hit, |f, m| {
+                    let even = (codes[usize::from(f[0])] | codes[usize::from(f[2])]) & m;
+                    let odd = (codes[usize::from(f[1])] | codes[usize::from(f[3])]) & (m >> 2);
+                    even | odd == 0
+                });
+            } else {
+                for_each_in_blocks(&self.narrow, &self.masks, &mut hit, |f, m| {
+                    sign_ok(codes, f.map(usize::from), m)
+                });
             }
         } else {
-            for (t, (f, &m)) in self.wide.iter().zip(&self.masks).enumerate() {
-                if sign_ok(codes, f.map(|x| x as usize), m) {
-                    hit(t);
-                }
-            }
+            for_each_in_blocks(&self.wide, &self.masks, &mut hit, |f, m| {
+                sign_ok(codes, f.map(|x| x as usize), m)
+            });
         }
+    }
+}
+
+/// Codes a [`TripleTable`] keeps at least, so that any 16-bit triple index is in range.
+pub const NARROW_CODES: usize = 1 << 16;
+
+/// Runs `pass` over `faces` and `masks` in blocks of 64 into a bit mask, then calls `hit`
+/// for the set bits (see [`TetScan::for_each_candidate`]).
+#[inline(always)]
+fn for_each_in_blocks<F: FaceTriples>(
+    faces: &[F],
+    masks: &[u8],
+    hit: &mut impl FnMut(usize, [u32; 4]),
+    pass: impl Fn(F, u8) -> bool,
+) {
+    for (block, (fb, mb)) in faces.chunks(64).zip(masks.chunks(64)).enumerate() {
+        let mut bits = 0u64;
+        for (k, (&f, &m)) in fb.iter().zip(mb).enumerate() {
+            bits |= u64::from(pass(f, m)) << k;
+        }
+        while bits != 0 {
+            let k = bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            hit(block * 64 + k, fb[k].widen());
+        }
+    }
+}
+
+/// A tetrahedron's face triples at either width, as [`TetScan`] stores them.
+trait FaceTriples: Copy {
+    fn widen(self) -> [u32; 4];
+}
+
+impl FaceTriples for [u16; 4] {
+    #[inline(always)]
+    fn widen(self) -> [u32; 4] {
+        self.map(u32::from)
+    }
+}
+
+impl FaceTriples for [u32; 4] {
+    #[inline(always)]
+    fn widen(self) -> [u32; 4] {
+        self
     }
 }
 
@@ -205,6 +304,53 @@ impl TripleTable {
         used: &[(u32, [u16; 3])],
         tolerance: f64,
     ) {
+        self.fill_with_codes(points, x, used, |_, v| {
+            if v > tolerance {
+                SIGN_POS
+            } else if v < -tolerance {
+                SIGN_NEG
+            } else {
+                0
+            }
+        });
+    }
+
+    /// [`TripleTable::fill_used`], with sign codes that mark a value only when the query
+    /// is more than `tol_mm` from the triple's plane (`|value| · inv_area2[triple]`, see
+    /// [`triple_inv_area2`]). With these codes the [`TetScan`] pre-test passes exactly
+    /// the tetrahedra [`TripleTable::near`] accepts with the same `tol_mm`.
+    pub fn fill_used_coded_near(
+        &mut self,
+        points: &[Point3<f64>],
+        x: &Point3<f64>,
+        used: &[(u32, [u16; 3])],
+        inv_area2: &[f64],
+        tol_mm: f64,
+    ) {
+        self.fill_with_codes(points, x, used, |idx, v| {
+            let far = v.abs() * inv_area2.get(idx).copied().unwrap_or(0.0) > tol_mm;
+            if !far {
+                0
+            } else if v > 0.0 {
+                SIGN_POS
+            } else {
+                SIGN_NEG
+            }
+        });
+    }
+
+    /// Fills the `used` values and their codes (`code(index, value)`); the codes keep at
+    /// least [`NARROW_CODES`] entries. When most triples are used, fills every triple
+    /// instead, in the table's own order: a straight loop over `i` the compiler
+    /// vectorizes, faster than following the list.
+    #[inline(always)]
+    fn fill_with_codes(
+        &mut self,
+        points: &[Point3<f64>],
+        x: &Point3<f64>,
+        used: &[(u32, [u16; 3])],
+        code: impl Fn(usize, f64) -> u8,
+    ) {
         let n = points.len();
         self.rel.clear();
         self.rel.extend(points.iter().map(|p| p - x));
@@ -213,9 +359,39 @@ impl TripleTable {
             self.values.clear();
             self.values.resize(size, 0.0);
         }
-        if self.codes.len() != size {
-            self.codes.clear();
-            self.codes.resize(size, 0);
+        if self.codes.len() < size.max(NARROW_CODES) {
+            self.codes.resize(size.max(NARROW_CODES), 0);
+        }
+        if used.len() * 4 >= size * 3 {
+            let (xs, ys, zs): (Vec<f64>, Vec<f64>, Vec<f64>) = {
+                let mut xs = Vec::with_capacity(n);
+                let mut ys = Vec::with_capacity(n);
+                let mut zs = Vec::with_capacity(n);
+                for r in &self.rel {
+                    xs.push(r.x);
+                    ys.push(r.y);
+                    zs.push(r.z);
+                }
+                (xs, ys, zs)
+            };
+            for k in 2..n {
+                for j in 1..k {
+                    let c = self.rel[j].cross(&self.rel[k]);
+                    let base = triple_index(0, j, k);
+                    let vals = &mut self.values[base..base + j];
+                    for (((v, &px), &py), &pz) in vals.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
+                        *v = px * c.x + py * c.y + pz * c.z;
+                    }
+                    for (i, (cd, &v)) in self.codes[base..base + j]
+                        .iter_mut()
+                        .zip(vals.iter())
+                        .enumerate()
+                    {
+                        *cd = code(base + i, v);
+                    }
+                }
+            }
+            return;
         }
         // Triples come sorted by index, i.e. grouped by (k, j): one cross product per group.
         let mut jk = (u16::MAX, u16::MAX);
@@ -227,14 +403,37 @@ impl TripleTable {
             }
             let v = self.rel[i as usize].dot(&cross);
             self.values[idx as usize] = v;
-            self.codes[idx as usize] = if v > tolerance {
-                SIGN_POS
-            } else if v < -tolerance {
-                SIGN_NEG
-            } else {
-                0
-            };
+            self.codes[idx as usize] = code(idx as usize, v);
         }
+    }
+
+    /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
+    /// ([`TripleTable::faces`]), from the table alone: the four face values, signed as in
+    /// [`TripleTable::inside`], over their sum (which is `det[b − a, c − a, d − a]`).
+    /// Not finite for a degenerate tetrahedron.
+    #[inline]
+    pub fn weights(&self, faces: &[u32; 4]) -> [f64; 4] {
+        let v = &self.values;
+        let t = faces.map(|f| v.get(f as usize).copied().unwrap_or(f64::NAN));
+        let w = [t[0], -t[1], t[2], -t[3]];
+        let inv = 1.0 / (w[0] + w[1] + w[2] + w[3]);
+        w.map(|x| x * inv)
+    }
+
+    /// The distance bound of [`TripleTable::near`] for weights `w` of the tetrahedron with
+    /// face triples `faces`: the largest distance of the query outside one of its face
+    /// planes (0 inside).
+    #[inline]
+    pub fn outside_distance(&self, faces: &[u32; 4], w: &[f64; 4], inv_area2: &[f64]) -> f64 {
+        let mut d: f64 = 0.0;
+        for k in 0..4 {
+            if w[k] < 0.0 {
+                let f = faces[k] as usize;
+                let t = self.values.get(f).copied().unwrap_or(0.0);
+                d = d.max(t.abs() * inv_area2.get(f).copied().unwrap_or(0.0));
+            }
+        }
+        d
     }
 
     /// The sign codes of the last [`TripleTable::fill_used_coded`].
@@ -586,6 +785,14 @@ mod tests {
             .collect();
         let scan = TetScan::new(&faces, &inv);
         let used = used_triples(&tets);
+        // Near-flat tetrahedra (the index drops them) are left out of the comparisons of
+        // weights: theirs are huge and the two ways of computing them agree only roughly.
+        let max_det = inv
+            .iter()
+            .filter(|&&v| v != 0.0)
+            .map(|v| 1.0 / v.abs())
+            .fold(0.0, f64::max);
+        let flat = |t: usize| inv[t] == 0.0 || 1.0 / inv[t].abs() < 1e-6 * max_det;
         let mut table = TripleTable::default();
         let (mut found, mut pruned) = (0, 0);
         for q in 0..200u32 {
@@ -602,19 +809,49 @@ mod tests {
             };
             table.fill_used_coded(&pts, &x, &used, scan.tolerance);
             let mut fast = Vec::new();
-            scan.for_each_candidate(table.codes(), |t| {
-                if table.inside(&faces[t], inv[t], -1e-9).is_some() {
+            scan.for_each_candidate(table.codes(), |t, f| {
+                assert_eq!(f, faces[t]);
+                assert_eq!(corners_from_faces(&f), Some(tets[t]));
+                let w = table.weights(&f);
+                if !flat(t) && w.iter().all(|&v| v >= -1e-9) {
                     fast.push(t);
+                    let exact = table.inside(&faces[t], inv[t], -1e-9).unwrap();
+                    for k in 0..4 {
+                        let tol = 1e-9 * exact[k].abs().max(1.0);
+                        assert!((w[k] - exact[k]).abs() < tol, "query {q}, tet {t}");
+                    }
                 }
             });
             let full: Vec<usize> = (0..tets.len())
+                .filter(|&t| !flat(t))
                 .filter(|&t| table.inside(&faces[t], inv[t], -1e-9).is_some())
                 .collect();
             assert_eq!(fast, full, "query {q}");
             found += full.len();
             let mut cands = 0;
-            scan.for_each_candidate(table.codes(), |_| cands += 1);
+            scan.for_each_candidate(table.codes(), |_, _| cands += 1);
             pruned += tets.len() - cands;
+            // With the near codes the pre-test passes exactly what `near` accepts.
+            let area = triple_inv_area2(&pts);
+            for tol in [0.05, 0.5] {
+                table.fill_used_coded_near(&pts, &x, &used, &area, tol);
+                let mut passed = Vec::new();
+                scan.for_each_candidate(table.codes(), |t, f| {
+                    if flat(t) {
+                        return;
+                    }
+                    let w = table.weights(&f);
+                    let (wn, d) = table.near(&faces[t], inv[t], &area, tol).unwrap();
+                    assert!((table.outside_distance(&f, &w, &area) - d).abs() < 1e-9);
+                    assert!((0..4).all(|k| (w[k] - wn[k]).abs() < 1e-9 * wn[k].abs().max(1.0)));
+                    passed.push(t);
+                });
+                let near: Vec<usize> = (0..tets.len())
+                    .filter(|&t| !flat(t))
+                    .filter(|&t| table.near(&faces[t], inv[t], &area, tol).is_some())
+                    .collect();
+                assert_eq!(passed, near, "query {q}, tolerance {tol}");
+            }
         }
         assert!(found > 0 && pruned > 0, "{found} found, {pruned} pruned");
     }

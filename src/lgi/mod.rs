@@ -550,8 +550,8 @@ impl LgiSolver {
         } else {
             Some(self.missing_weights(&present)?)
         };
-        let n = index.neutral.len();
-        let mut acc = vec![Vector3::<f64>::zeros(); n];
+        // The neutral plus every marker's blended displacement, accumulated in place.
+        let mut out: Vec<Point3<f64>> = index.neutral.clone();
         for (m, mi) in index.markers.iter().enumerate() {
             if !present[m] {
                 continue;
@@ -566,16 +566,16 @@ impl LgiSolver {
                 }
                 let mut d = r;
                 for &(j, w) in pts {
-                    d += mi.patch[j as usize * ns + s] * w;
+                    d += index::widen(mi.patch[j as usize * ns + s]) * w;
                 }
-                acc[v as usize] += d * lam;
+                out[v as usize] += d * lam;
             }
             // Vertices no variant displaces: only the residual (their patch terms are 0).
             for &(v, lam) in &mi.blend[ns..] {
                 if affected.is_some_and(|a| a[v as usize]) {
                     continue;
                 }
-                acc[v as usize] += r * lam;
+                out[v as usize] += r * lam;
             }
         }
         for (v, ws) in missing.iter().flat_map(|mw| {
@@ -594,15 +594,14 @@ impl LgiSolver {
                 let mut d = residual[m];
                 for &(j, w) in &weights.markers[m].points {
                     if let Some(s) = mi.shapes[j as usize] {
-                        d += index.displacements[s as usize][v] * w;
+                        // Rounded as the patches are (see `MarkerIndex::patch`).
+                        d += index::widen(index::narrow(index.displacements[s as usize][v])) * w;
                     }
                 }
                 a += d * lam;
             }
-            acc[v] = a;
+            out[v] = index.neutral[v] + a;
         }
-        let mut out: Vec<Point3<f64>> =
-            index.neutral.iter().zip(&acc).map(|(x, d)| x + d).collect();
         if let (Some(j), Some(pose)) = (&index.jaw, &weights.jaw) {
             let t = j.rig.jaw_transform(pose);
             for (p, &w) in out.iter_mut().zip(&j.rig.weights) {

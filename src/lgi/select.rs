@@ -19,7 +19,9 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::barycentric::{TripleTable, closest_on_simplex, combine, tet_barycentric};
+use super::barycentric::{
+    TripleTable, closest_on_simplex, combine, corners_from_faces, tet_barycentric,
+};
 use super::index::MarkerIndex;
 
 /// Weight of the deformation tie-break, per millimetre of patch deformation.
@@ -67,9 +69,6 @@ pub struct Scratch {
     in_previous: Vec<bool>,
     /// Orientations of the query against every triple of points.
     table: TripleTable,
-    /// Tetrahedra containing (or near) the query, with its barycentric coordinates and
-    /// distance bound.
-    hits: Vec<(u32, [f64; 4], f64)>,
 }
 
 /// Selection settings (from [`super::LgiParams`]).
@@ -169,40 +168,43 @@ pub fn choose(
     let gram = &scratch.gram;
     let deform_of = &scratch.deform;
     let in_previous = &scratch.in_previous;
-    let score = |corners: &[u16; 4], w: &[f64; 4], self_d2: f64| -> f64 {
-        let c = corners.map(usize::from);
-        let mut q = 0.0;
+    // A candidate's cost is `sqrt(q + self_d2) + extra`, `q = wᵀ G w` over its corners
+    // and `extra` the temporal preference and the tie-break, both non-negative.
+    let quadratic = |c: &[usize; 4], w: &[f64; 4]| -> f64 {
+        if dim == 3 {
+            // The common case, by symmetry: the diagonal and each pair once.
+            let g = |a: usize, b: usize| gram[c[a] * np + c[b]];
+            let diag = w[0] * w[0] * g(0, 0)
+                + w[1] * w[1] * g(1, 1)
+                + w[2] * w[2] * g(2, 2)
+                + w[3] * w[3] * g(3, 3);
+            let off = w[0] * (w[1] * g(0, 1) + w[2] * g(0, 2) + w[3] * g(0, 3))
+                + w[1] * (w[2] * g(1, 2) + w[3] * g(1, 3))
+                + w[2] * w[3] * g(2, 3);
+            diag + 2.0 * off
+        } else {
+            let mut q = 0.0;
+            for a in 0..=dim {
+                for b in 0..=dim {
+                    q += w[a] * w[b] * gram[c[a] * np + c[b]];
+                }
+            }
+            q
+        }
+    };
+    let extra = |c: &[usize; 4], w: &[f64; 4]| -> f64 {
         let mut deform = 0.0;
         let mut shared = 0usize;
-        if dim == 3 {
-            // The common case, unrolled (same arithmetic, same order as below).
-            for a in 0..4 {
-                let row = &gram[c[a] * np..(c[a] + 1) * np];
-                for b in 0..4 {
-                    q += w[a] * w[b] * row[c[b]];
-                }
-            }
-            for a in 0..4 {
-                deform += w[a] * deform_of[c[a]];
-                shared += usize::from(in_previous[c[a]]);
-            }
+        for a in 0..=dim {
+            deform += w[a] * deform_of[c[a]];
+            shared += usize::from(in_previous[c[a]]);
+        }
+        let temporal = if previous.is_some() {
+            params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64
         } else {
-            for a in 0..=dim {
-                let row = &gram[c[a] * np..(c[a] + 1) * np];
-                for b in 0..=dim {
-                    q += w[a] * w[b] * row[c[b]];
-                }
-            }
-            for a in 0..=dim {
-                deform += w[a] * deform_of[c[a]];
-                shared += usize::from(in_previous[c[a]]);
-            }
-        }
-        let mut cost = (q.max(0.0) + self_d2).sqrt();
-        if previous.is_some() {
-            cost += params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64;
-        }
-        cost + TIE_BREAK * deform
+            0.0
+        };
+        temporal + TIE_BREAK * deform
     };
 
     let mut best: Option<([u16; 4], [f64; 4], bool, f64)> = None;
@@ -211,7 +213,17 @@ pub fn choose(
                     w: [f64; 4],
                     inside: bool,
                     self_d2: f64| {
-        let cost = score(&corners, &w, self_d2);
+        let c = corners.map(usize::from);
+        let base = quadratic(&c, &w).max(0.0) + self_d2;
+        let extra = extra(&c, &w);
+        if let Some(b) = best.as_ref() {
+            // Without the square root when the candidate clearly loses: most do.
+            let room = b.3 - extra;
+            if room <= 0.0 || base > room * room * (1.0 + 1e-12) {
+                return;
+            }
+        }
+        let cost = base.sqrt() + extra;
         if best.as_ref().is_none_or(|b| cost < b.3) {
             *best = Some((corners, w, inside, cost));
         }
@@ -222,33 +234,39 @@ pub fn choose(
         //    list: the grid cell's when it is short, else every tetrahedron (the
         //    all-combination tetrahedra overlap so much that a cell often lists most of
         //    them). The winner's weights are recomputed exactly below.
-        let mut hits = std::mem::take(&mut scratch.hits);
         let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
                     table: &mut TripleTable,
-                    hits: &mut Vec<(u32, [f64; 4], f64)>,
                     y: &Point3<f64>,
                     inside: bool,
                     self_d2: f64,
                     tol: f64| {
-            table.fill_used_coded(&mi.points, y, &mi.used_triples, mi.scan.tolerance);
-            hits.clear();
-            collect_containing(mi, grid, table, y, inside, tol, hits);
-            for &(t, mut w, d) in hits.iter() {
-                clamp_convex(&mut w);
-                consider(
-                    best,
-                    mi.simplices.corners[t as usize],
-                    w,
-                    inside,
-                    self_d2 + d * d,
+            if tol > 0.0 {
+                table.fill_used_coded_near(
+                    &mi.points,
+                    y,
+                    &mi.used_triples,
+                    &mi.triple_inv_area2,
+                    tol,
                 );
+            } else {
+                table.fill_used_coded(&mi.points, y, &mi.used_triples, mi.scan.tolerance);
             }
+            for_each_containing(mi, grid, table, y, inside, tol, |t, faces, mut w, d| {
+                if tol > 0.0 {
+                    // Near, not inside: the closest point's weights, roughly.
+                    clamp_convex(&mut w);
+                }
+                // The corners from the faces (a small shared table) rather than from the
+                // marker's corner list, which would be one more stream of memory.
+                let corners =
+                    corners_from_faces(&faces).unwrap_or_else(|| mi.simplices.corners[t as usize]);
+                consider(best, corners, w, inside, self_d2 + d * d);
+            });
         };
         let mut table = std::mem::take(&mut scratch.table);
         scan(
             &mut best,
             &mut table,
-            &mut hits,
             x,
             true,
             0.0,
@@ -269,12 +287,11 @@ pub fn choose(
                     }
                 }
                 if best.is_none() {
-                    scan(&mut best, &mut table, &mut hits, &q, false, d2, 0.0);
+                    scan(&mut best, &mut table, &q, false, d2, 0.0);
                 }
             }
         }
         scratch.table = table;
-        scratch.hits = hits;
         // The winner's exact weights: its barycentric coordinates of the bundle when it
         // contains it, else the closest point of the tetrahedron (a pre-test false
         // positive, or a projection).
@@ -417,47 +434,53 @@ fn refine_variants(
     var
 }
 
-/// Appends to `hits` the tetrahedra of `mi` containing the point `y` whose orientations
-/// `table` holds, with its barycentric coordinates and distance (0); with `tol_mm > 0`
-/// also those within about `tol_mm` of it (distance bound from the face planes). Scans the
-/// grid cell of `y` when it lists less than half the tetrahedra, else every tetrahedron;
-/// nothing when `y` is outside the grid box, `strict` and `tol_mm == 0`.
-fn collect_containing(
+/// Calls `hit(t, w, d)` for the tetrahedra `t` of `mi` containing the point `y` whose
+/// orientations and codes `table` holds, with its barycentric coordinates `w` and distance
+/// `d` (0); with `tol_mm > 0` (and `table` coded for it, see
+/// [`TripleTable::fill_used_coded_near`]) for those within about `tol_mm` of it instead
+/// (distance bound from the face planes). Scans the grid cell of `y` when it lists less
+/// than half the tetrahedra, else every tetrahedron; nothing when `y` is outside the grid
+/// box, `strict` and `tol_mm == 0`. Tetrahedra come in ascending order.
+fn for_each_containing(
     mi: &MarkerIndex,
     grid: &super::grid::TetGrid,
     table: &TripleTable,
     y: &Point3<f64>,
     strict: bool,
     tol_mm: f64,
-    hits: &mut Vec<(u32, [f64; 4], f64)>,
+    mut hit: impl FnMut(u32, [u32; 4], [f64; 4], f64),
 ) {
-    let all = mi.faces.len();
+    let all = mi.scan.len();
+    let codes = table.codes();
     if tol_mm > 0.0 {
-        for (t, (f, &iv)) in mi.faces.iter().zip(&mi.inv_volume).enumerate() {
-            if let Some((w, d)) = table.near(f, iv, &mi.triple_inv_area2, tol_mm) {
-                hits.push((t as u32, w, d));
+        // The near codes make the pre-test exact: every tetrahedron passing it is within
+        // the tolerance (`TripleTable::near`).
+        mi.scan.for_each_candidate(codes, |t, faces| {
+            let w = table.weights(&faces);
+            let d = table.outside_distance(&faces, &w, &mi.triple_inv_area2);
+            if w.iter().all(|v| v.is_finite()) {
+                hit(t as u32, faces, w, d);
             }
-        }
+        });
         return;
     }
     // The sign pre-test (see `TetScan`) passes every tetrahedron the exact test accepts.
-    let codes = table.codes();
+    let mut exact = |t: usize, faces: [u32; 4]| {
+        let w = table.weights(&faces);
+        if w[0].min(w[1]).min(w[2].min(w[3])) >= INSIDE_SLACK {
+            hit(t as u32, faces, w, 0.0);
+        }
+    };
     let cell = grid.candidates(y);
     if cell.len() * 2 < all {
         for &t in cell {
             let t = t as usize;
-            if mi.scan.may_contain(codes, t)
-                && let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK)
-            {
-                hits.push((t as u32, w, 0.0));
+            if mi.scan.may_contain(codes, t) {
+                exact(t, mi.scan.faces(t));
             }
         }
     } else if grid.contains(y) || !strict {
-        mi.scan.for_each_candidate(codes, |t| {
-            if let Some(w) = table.inside(&mi.faces[t], mi.inv_volume[t], INSIDE_SLACK) {
-                hits.push((t as u32, w, 0.0));
-            }
-        });
+        mi.scan.for_each_candidate(codes, exact);
     }
 }
 
