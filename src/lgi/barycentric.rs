@@ -278,21 +278,25 @@ impl TripleTable {
         }
     }
 
-    /// Fills only the `used` triples (`(index, [i, j, k])`, see [`used_triples`]) for
+    /// Fills only the `used` triples ([`UsedTriples`]) for
     /// `points` and query `x`; the other entries keep stale values and must not be read.
-    pub fn fill_used(&mut self, points: &[Point3<f64>], x: &Point3<f64>, used: &[(u32, [u16; 3])]) {
+    pub fn fill_used(&mut self, points: &[Point3<f64>], x: &Point3<f64>, used: &UsedTriples) {
         let n = points.len();
         self.rel.clear();
         self.rel.extend(points.iter().map(|p| p - x));
         let size = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
-        if self.values.len() != size {
-            self.values.clear();
+        // Grown, never cleared: only the entries filled here are read.
+        if self.values.len() < size {
             self.values.resize(size, 0.0);
         }
-        for &(idx, [i, j, k]) in used {
-            let (i, j, k) = (i as usize, j as usize, k as usize);
-            self.values[idx as usize] = self.rel[i].dot(&self.rel[j].cross(&self.rel[k]));
-        }
+        let (rel, values) = (&self.rel, &mut self.values);
+        used.for_each_group(|j, k, is| {
+            let c = rel[j].cross(&rel[k]);
+            let base = triple_index(0, j, k);
+            for &i in is {
+                values[base + usize::from(i)] = rel[usize::from(i)].dot(&c);
+            }
+        });
     }
 
     /// [`TripleTable::fill_used`], and the sign codes of the filled values: [`SIGN_POS`]
@@ -301,7 +305,7 @@ impl TripleTable {
         &mut self,
         points: &[Point3<f64>],
         x: &Point3<f64>,
-        used: &[(u32, [u16; 3])],
+        used: &UsedTriples,
         tolerance: f64,
     ) {
         self.fill_with_codes(points, x, used, |_, v| {
@@ -323,7 +327,7 @@ impl TripleTable {
         &mut self,
         points: &[Point3<f64>],
         x: &Point3<f64>,
-        used: &[(u32, [u16; 3])],
+        used: &UsedTriples,
         inv_area2: &[f64],
         tol_mm: f64,
     ) {
@@ -348,15 +352,15 @@ impl TripleTable {
         &mut self,
         points: &[Point3<f64>],
         x: &Point3<f64>,
-        used: &[(u32, [u16; 3])],
+        used: &UsedTriples,
         code: impl Fn(usize, f64) -> u8,
     ) {
         let n = points.len();
         self.rel.clear();
         self.rel.extend(points.iter().map(|p| p - x));
         let size = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
-        if self.values.len() != size {
-            self.values.clear();
+        // Grown, never cleared: only the entries filled here are read.
+        if self.values.len() < size {
             self.values.resize(size, 0.0);
         }
         if self.codes.len() < size.max(NARROW_CODES) {
@@ -393,18 +397,17 @@ impl TripleTable {
             }
             return;
         }
-        // Triples come sorted by index, i.e. grouped by (k, j): one cross product per group.
-        let mut jk = (u16::MAX, u16::MAX);
-        let mut cross = nalgebra::Vector3::zeros();
-        for &(idx, [i, j, k]) in used {
-            if (j, k) != jk {
-                jk = (j, k);
-                cross = self.rel[j as usize].cross(&self.rel[k as usize]);
+        let (rel, values, codes) = (&self.rel, &mut self.values, &mut self.codes);
+        used.for_each_group(|j, k, is| {
+            let c = rel[j].cross(&rel[k]);
+            let base = triple_index(0, j, k);
+            for &i in is {
+                let idx = base + usize::from(i);
+                let v = rel[usize::from(i)].dot(&c);
+                values[idx] = v;
+                codes[idx] = code(idx, v);
             }
-            let v = self.rel[i as usize].dot(&cross);
-            self.values[idx as usize] = v;
-            self.codes[idx as usize] = code(idx as usize, v);
-        }
+        });
     }
 
     /// Barycentric coordinates of the query in the tetrahedron with face triples `faces`
@@ -518,25 +521,85 @@ impl TripleTable {
     }
 }
 
-/// The distinct face triples of `tets` (corners ascending), as `(index, [i, j, k])` in
-/// ascending index order: all a [`TripleTable`] needs for them.
-pub fn used_triples(tets: &[[u16; 4]]) -> Vec<(u32, [u16; 3])> {
-    let mut out: Vec<(u32, [u16; 3])> = tets
-        .iter()
-        .flat_map(|t| {
-            let (a, b, c, d) = (t[0], t[1], t[2], t[3]);
-            [[b, c, d], [a, c, d], [a, b, d], [a, b, c]]
+/// The distinct face triples of a set of tetrahedra: all a [`TripleTable`] needs for
+/// them. Grouped by their two largest points `(j, k)` (one cross product per group), with
+/// the smallest points `i` of a group stored as 16-bit numbers: two bytes per triple, so
+/// a frame streams little memory even for large clouds.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct UsedTriples {
+    /// Per group: `(j, k, end)`, ascending by triple index; the group's `i` are
+    /// `smallest[previous end..end]`.
+    groups: Vec<(u16, u16, u32)>,
+    /// The smallest points of every group's triples, ascending within a group.
+    smallest: Vec<u16>,
+}
+
+impl UsedTriples {
+    /// The face triples of `tets` (corners ascending).
+    pub fn new(tets: &[[u16; 4]]) -> Self {
+        let mut all: Vec<(u32, [u16; 3])> = tets
+            .iter()
+            .flat_map(|t| {
+                let (a, b, c, d) = (t[0], t[1], t[2], t[3]);
+                [[b, c, d], [a, c, d], [a, b, d], [a, b, c]]
+            })
+            .map(|f| {
+                (
+                    triple_index(f[0] as usize, f[1] as usize, f[2] as usize) as u32,
+                    f,
+                )
+            })
+            .collect();
+        all.sort_unstable_by_key(|e| e.0);
+        all.dedup_by_key(|e| e.0);
+        let mut out = Self::default();
+        for (_, [i, j, k]) in all {
+            if out.groups.last().is_none_or(|g| (g.0, g.1) != (j, k)) {
+                out.groups.push((j, k, out.smallest.len() as u32));
+            }
+            out.smallest.push(i);
+            if let Some(g) = out.groups.last_mut() {
+                g.2 = out.smallest.len() as u32;
+            }
+        }
+        out
+    }
+
+    /// Number of triples.
+    pub fn len(&self) -> usize {
+        self.smallest.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.smallest.is_empty()
+    }
+
+    /// Calls `f(j, k, is)` for every group, ascending.
+    #[inline]
+    fn for_each_group(&self, mut f: impl FnMut(usize, usize, &[u16])) {
+        let mut start = 0usize;
+        for &(j, k, end) in &self.groups {
+            let end = end as usize;
+            f(usize::from(j), usize::from(k), &self.smallest[start..end]);
+            start = end;
+        }
+    }
+
+    /// Every triple as `(index, [i, j, k])`, ascending.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, [u16; 3])> + '_ {
+        let mut start = 0usize;
+        self.groups.iter().flat_map(move |&(j, k, end)| {
+            let range = start..end as usize;
+            start = end as usize;
+            self.smallest[range].iter().map(move |&i| {
+                (
+                    triple_index(usize::from(i), usize::from(j), usize::from(k)) as u32,
+                    [i, j, k],
+                )
+            })
         })
-        .map(|f| {
-            (
-                triple_index(f[0] as usize, f[1] as usize, f[2] as usize) as u32,
-                f,
-            )
-        })
-        .collect();
-    out.sort_unstable_by_key(|e| e.0);
-    out.dedup_by_key(|e| e.0);
-    out
+    }
 }
 
 /// `1 / (2 · area)` of the triangle of every triple of `points`, in [`triple_index`]
@@ -784,7 +847,7 @@ mod tests {
             })
             .collect();
         let scan = TetScan::new(&faces, &inv);
-        let used = used_triples(&tets);
+        let used = UsedTriples::new(&tets);
         // Near-flat tetrahedra (the index drops them) are left out of the comparisons of
         // weights: theirs are huge and the two ways of computing them agree only roughly.
         let max_det = inv

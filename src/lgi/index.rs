@@ -47,9 +47,9 @@ pub struct MarkerIndex {
     /// `1 / (2 · area)` of every triple's triangle (for distances to face planes).
     #[serde(skip)]
     pub triple_inv_area2: Vec<f64>,
-    /// The face triples the tetrahedra use (see [`super::barycentric::used_triples`]).
+    /// The face triples the tetrahedra use.
     #[serde(skip)]
-    pub used_triples: Vec<(u32, [u16; 3])>,
+    pub used_triples: super::barycentric::UsedTriples,
     /// Grid over the tetrahedra (`None` below dimension 3).
     #[serde(skip)]
     pub grid: Option<TetGrid>,
@@ -114,14 +114,14 @@ impl MarkerIndex {
                 .iter()
                 .map(super::barycentric::TripleTable::faces)
                 .collect();
-            self.used_triples = super::barycentric::used_triples(corners);
+            self.used_triples = super::barycentric::UsedTriples::new(corners);
             self.scan = super::barycentric::TetScan::new(&self.faces, &self.inv_volume);
             self.triple_inv_area2 = super::barycentric::triple_inv_area2(points);
         } else {
             self.inv_volume = Vec::new();
             self.grid = None;
             self.faces = Vec::new();
-            self.used_triples = Vec::new();
+            self.used_triples = Default::default();
             self.scan = Default::default();
             self.triple_inv_area2 = Vec::new();
         }
@@ -437,7 +437,7 @@ impl LgiIndex {
                     faces: Vec::new(),
                     scan: Default::default(),
                     triple_inv_area2: Vec::new(),
-                    used_triples: Vec::new(),
+                    used_triples: Default::default(),
                     grid: None,
                     hull,
                     hull_tets: Vec::new(),

@@ -136,9 +136,12 @@ pub fn choose(
             }
         }
     }
-    scratch.gram.clear();
+    // Every entry is written below when a neighbour is present (no clearing: with large
+    // clouds that would be most of the work).
     scratch.gram.resize(np * np, 0.0);
-    if npk > 0 {
+    if npk == 0 {
+        scratch.gram.iter_mut().for_each(|g| *g = 0.0);
+    } else {
         let inv = 1.0 / npk as f64;
         for a in 0..np {
             let ea = &scratch.err[a * npk..(a + 1) * npk];
@@ -234,12 +237,9 @@ pub fn choose(
         //    list: the grid cell's when it is short, else every tetrahedron (the
         //    all-combination tetrahedra overlap so much that a cell often lists most of
         //    them). The winner's weights are recomputed exactly below.
-        let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
-                    table: &mut TripleTable,
-                    y: &Point3<f64>,
-                    inside: bool,
-                    self_d2: f64,
-                    tol: f64| {
+        // Fills the table at `y`: sign codes for containment, or with a tolerance for
+        // nearness (`TripleTable::fill_used_coded_near`).
+        let fill = |table: &mut TripleTable, y: &Point3<f64>, tol: f64| {
             if tol > 0.0 {
                 table.fill_used_coded_near(
                     &mi.points,
@@ -251,6 +251,14 @@ pub fn choose(
             } else {
                 table.fill_used_coded(&mi.points, y, &mi.used_triples, mi.scan.tolerance);
             }
+        };
+        // Considers the tetrahedra containing (or near) `y`, with the table filled there.
+        let scan = |best: &mut Option<([u16; 4], [f64; 4], bool, f64)>,
+                    table: &TripleTable,
+                    y: &Point3<f64>,
+                    inside: bool,
+                    self_d2: f64,
+                    tol: f64| {
             for_each_containing(mi, grid, table, y, inside, tol, |t, faces, mut w, d| {
                 if tol > 0.0 {
                     // Near, not inside: the closest point's weights, roughly.
@@ -264,21 +272,16 @@ pub fn choose(
             });
         };
         let mut table = std::mem::take(&mut scratch.table);
-        scan(
-            &mut best,
-            &mut table,
-            x,
-            true,
-            0.0,
-            params.bundle_tolerance_mm,
-        );
+        let tol = params.bundle_tolerance_mm;
+        fill(&mut table, x, tol);
+        scan(&mut best, &table, x, true, 0.0, tol);
         if best.is_none() {
             // 2. Outside: project onto the cloud's convex hull (the union of all
             //    four-point tetrahedra) and choose among the tetrahedra at that point.
             if let Some((q, h)) = super::hull::closest_on_hull(&mi.points, &mi.hull, x) {
                 let d2 = (q - x).norm_squared();
                 // First the tetrahedra on that hull triangle, then (pruned there) any.
-                table.fill_used(&mi.points, &q, &mi.used_triples);
+                fill(&mut table, &q, 0.0);
                 for &t in &mi.hull_tets[h] {
                     let t = t as usize;
                     if let Some(mut w) = table.inside(&mi.faces[t], mi.inv_volume[t], HULL_SLACK) {
@@ -287,7 +290,7 @@ pub fn choose(
                     }
                 }
                 if best.is_none() {
-                    scan(&mut best, &mut table, &q, false, d2, 0.0);
+                    scan(&mut best, &table, &q, false, d2, 0.0);
                 }
             }
         }
@@ -326,12 +329,25 @@ pub fn choose(
             let mut dmin = f64::INFINITY;
             let stamp = &mut scratch.stamp;
             let found = &mut scratch.found;
+            // A lower bound of each tetrahedron's distance from the table (the farthest
+            // face plane the bundle is outside of) skips the exact closest point for
+            // those that cannot be the closest: the same result, far fewer of them.
+            let table = &mut scratch.table;
+            table.fill_used(&mi.points, x, &mi.used_triples);
             grid.visit_shells(x, |_, list| {
                 for &t in list {
                     if stamp[t as usize] == epoch {
                         continue;
                     }
                     stamp[t as usize] = epoch;
+                    let faces = mi.scan.faces(t as usize);
+                    let w = table.weights(&faces);
+                    if w.iter().all(|v| v.is_finite())
+                        && table.outside_distance(&faces, &w, &mi.triple_inv_area2)
+                            > dmin + PROJECTION_TIE_MM
+                    {
+                        continue;
+                    }
                     let p = mi.corners(t as usize);
                     let w = closest_on_simplex(&p, x);
                     let d = (combine(&p, &w) - x).norm();
