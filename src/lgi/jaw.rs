@@ -155,10 +155,219 @@ impl JawRegression {
     }
 }
 
-/// The frame's jaw pose estimated from its bundles (see [`JawRegression::estimate`]).
-pub fn estimate_pose(index: &super::LgiIndex, bundles: &crate::bundles::FrameBundles) -> JawPose {
+/// The frame's jaw pose estimated from its bundles: the regression's estimate
+/// ([`JawRegression::estimate`]), refined by fitting the dataset as a skinned rig to the
+/// bundles ([`refine_pose`]).
+pub fn estimate_pose(
+    index: &super::LgiIndex,
+    bundles: &crate::bundles::FrameBundles,
+    cache: &mut RigFitCache,
+) -> JawPose {
     match &index.jaw {
-        Some(j) => j.regression.estimate(&bundles.positions),
+        Some(j) => {
+            let initial = j.regression.estimate(&bundles.positions);
+            refine_pose(index, &bundles.positions, initial, cache)
+        }
         None => JawPose::default(),
+    }
+}
+
+/// The Gram matrix of the unskinned shapes over the present markers, kept between
+/// frames of [`refine_pose`] while the same markers are present (the usual case).
+#[derive(Debug, Clone, Default)]
+pub struct RigFitCache {
+    present: Vec<bool>,
+    gram: Option<nalgebra::DMatrix<f64>>,
+}
+
+/// Rounds of the rig fit in [`refine_pose`].
+const RIG_FIT_ROUNDS: usize = 6;
+/// Coordinate-descent sweeps over the shape weights per round.
+const WEIGHT_SWEEPS: usize = 40;
+
+/// Refines the jaw pose `initial` of a frame whose (head-frame) bundles are `bundles`, by
+/// fitting the dataset as a jaw-skinned blendshape rig to them: `y_m ≈ T_m(θ) (x₀_m +
+/// Σ_n w_n b*_n,m)` over the present markers `m`, with `b*_n` the unskinned shapes of
+/// Eq. (2) and `w_n ∈ [0, 1]`. Alternately: the weights given the pose (the bundles
+/// unskinned by `θ`, then bounded least squares by coordinate descent), and the pose given
+/// the weights (Gauss–Newton on the three jaw parameters).
+///
+/// §6 leaves the per-frame jaw estimate to "one of the usual methods for head and jaw
+/// tracking". A linear regression from marker motion to the pose alone is confounded
+/// by the other expressions' motion of the chin and lips, and a hundredth of a radian
+/// moves the chin by most of a millimetre, which the unskinned bundles then carry into
+/// the indexing. The rig fit explains the expressions and the jaw together. It keeps the
+/// initial pose when it does not fit the bundles better.
+pub fn refine_pose(
+    index: &super::LgiIndex,
+    bundles: &[Option<Point3<f64>>],
+    initial: JawPose,
+    cache: &mut RigFitCache,
+) -> JawPose {
+    let Some(space) = &index.jaw else {
+        return initial;
+    };
+    let rig = &space.rig;
+    // Present markers: vertex, bundle, skinning weight, rest position.
+    let present: Vec<(usize, Point3<f64>, f64, Point3<f64>)> = index
+        .markers
+        .iter()
+        .zip(bundles)
+        .filter_map(|(mi, y)| {
+            let y = (*y)?;
+            let v = mi.vertex as usize;
+            (y.coords.iter().all(|c| c.is_finite()))
+                .then(|| (v, y, rig.weights[v], index.neutral[v]))
+        })
+        .collect();
+    let n = index.displacements.len();
+    if present.is_empty() || n == 0 {
+        return initial;
+    }
+    // Gram matrix of the unskinned shapes over the present markers.
+    let basis = |s: usize, v: usize| index.displacements[s][v];
+    let mask: Vec<bool> = index
+        .markers
+        .iter()
+        .zip(bundles)
+        .map(|(_, y)| y.is_some_and(|y| y.coords.iter().all(|c| c.is_finite())))
+        .collect();
+    if cache.present != mask || cache.gram.as_ref().is_none_or(|g| g.nrows() != n) {
+        let mut gram = nalgebra::DMatrix::<f64>::zeros(n, n);
+        for a in 0..n {
+            for b in a..n {
+                let g: f64 = present
+                    .iter()
+                    .map(|p| basis(a, p.0).dot(&basis(b, p.0)))
+                    .sum();
+                gram[(a, b)] = g;
+                gram[(b, a)] = g;
+            }
+        }
+        cache.present = mask;
+        cache.gram = Some(gram);
+    }
+    let Some(gram) = cache.gram.as_ref() else {
+        return initial;
+    };
+    let cost = |pose: &JawPose, w: &[f64]| -> f64 {
+        let jaw = rig.jaw_transform(pose);
+        present
+            .iter()
+            .map(|&(v, y, sw, x0)| {
+                let mut p = x0;
+                for (s, &ws) in w.iter().enumerate() {
+                    if ws != 0.0 {
+                        p += basis(s, v) * ws;
+                    }
+                }
+                (rig.skin_point(&jaw, sw, &p) - y).norm_squared()
+            })
+            .sum()
+    };
+    let fit_weights = |pose: &JawPose, w: &mut [f64]| {
+        let jaw = rig.jaw_transform(pose);
+        let mut h = vec![0.0; n];
+        for &(v, y, sw, x0) in &present {
+            let r = rig.unskin_point(&jaw, sw, &y) - x0;
+            for (s, hs) in h.iter_mut().enumerate() {
+                *hs += basis(s, v).dot(&r);
+            }
+        }
+        let mut gw: Vec<f64> = (0..n)
+            .map(|a| (0..n).map(|b| gram[(a, b)] * w[b]).sum())
+            .collect();
+        for _ in 0..WEIGHT_SWEEPS {
+            for s in 0..n {
+                let d = gram[(s, s)];
+                if d <= 1e-12 {
+                    continue;
+                }
+                let new = (w[s] + (h[s] - gw[s]) / d).clamp(0.0, 1.0);
+                let delta = new - w[s];
+                if delta != 0.0 {
+                    for (a, g) in gw.iter_mut().enumerate() {
+                        *g += gram[(a, s)] * delta;
+                    }
+                    w[s] = new;
+                }
+            }
+        }
+    };
+    let fit_pose = |pose: JawPose, w: &[f64]| -> JawPose {
+        let mut pose = pose;
+        let unskinned: Vec<(Point3<f64>, f64, Point3<f64>)> = present
+            .iter()
+            .map(|&(v, y, sw, x0)| {
+                let mut p = x0;
+                for (s, &ws) in w.iter().enumerate() {
+                    if ws != 0.0 {
+                        p += basis(s, v) * ws;
+                    }
+                }
+                (p, sw, y)
+            })
+            .collect();
+        let residuals = |q: &JawPose| -> Vec<Vector3<f64>> {
+            let jaw = rig.jaw_transform(q);
+            unskinned
+                .iter()
+                .map(|(p, sw, y)| rig.skin_point(&jaw, *sw, p) - y)
+                .collect()
+        };
+        let as_array = |q: &JawPose| [q.open_rad, q.lateral_rad, q.forward_mm];
+        let from_array = |a: [f64; 3]| JawPose {
+            open_rad: a[0],
+            lateral_rad: a[1],
+            forward_mm: a[2],
+        };
+        const STEPS: [f64; 3] = [1e-5, 1e-5, 1e-4];
+        for _ in 0..3 {
+            let r0 = residuals(&pose);
+            let base = as_array(&pose);
+            let cols: [Vec<Vector3<f64>>; 3] = [0, 1, 2].map(|k| {
+                let mut a = base;
+                a[k] += STEPS[k];
+                residuals(&from_array(a))
+                    .iter()
+                    .zip(&r0)
+                    .map(|(a, b)| (a - b) / STEPS[k])
+                    .collect()
+            });
+            let mut jtj = nalgebra::Matrix3::<f64>::zeros();
+            let mut jtr = Vector3::<f64>::zeros();
+            for a in 0..3 {
+                for b in 0..3 {
+                    jtj[(a, b)] = cols[a].iter().zip(&cols[b]).map(|(x, y)| x.dot(y)).sum();
+                }
+                jtr[a] = cols[a].iter().zip(&r0).map(|(x, y)| x.dot(y)).sum();
+            }
+            let damped = jtj + nalgebra::Matrix3::from_diagonal(&jtj.diagonal()) * 1e-6;
+            let Some(step) = damped.try_inverse().map(|inv| inv * jtr) else {
+                break;
+            };
+            let next = from_array([base[0] - step[0], base[1] - step[1], base[2] - step[2]]);
+            if !(next.open_rad.is_finite()
+                && next.lateral_rad.is_finite()
+                && next.forward_mm.is_finite())
+            {
+                break;
+            }
+            pose = next;
+        }
+        pose
+    };
+    let mut w = vec![0.0; n];
+    let mut pose = initial;
+    fit_weights(&pose, &mut w);
+    let start = cost(&initial, &w);
+    for _ in 0..RIG_FIT_ROUNDS {
+        pose = fit_pose(pose, &w);
+        fit_weights(&pose, &mut w);
+    }
+    if cost(&pose, &w) < start {
+        pose
+    } else {
+        initial
     }
 }

@@ -275,6 +275,8 @@ pub struct LgiSolver {
     cluster_cache: std::collections::HashMap<Vec<u32>, (u64, Arc<ClusterWeights>)>,
     /// Frames solved (the clock of `cluster_cache`).
     solved: u64,
+    /// Kept between frames by the jaw pose estimate.
+    rig_fit: jaw::RigFitCache,
 }
 
 /// Blending weights of the vertices affected by one cluster of missing markers (the
@@ -332,6 +334,7 @@ impl LgiSolver {
             scratch: select::Scratch::default(),
             cluster_cache: Default::default(),
             solved: 0,
+            rig_fit: Default::default(),
         })
     }
 
@@ -449,7 +452,7 @@ impl LgiSolver {
         let jaw = match (&self.index.jaw, jaw) {
             (None, _) => None,
             (Some(_), Some(j)) => Some(j),
-            (Some(_), None) => Some(jaw::estimate_pose(&self.index, bundles)),
+            (Some(_), None) => Some(jaw::estimate_pose(&self.index, bundles, &mut self.rig_fit)),
         };
         let xs = self.index_space_bundles(bundles, jaw.as_ref());
         let sp = select::SelectParams {

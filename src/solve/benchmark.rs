@@ -307,6 +307,74 @@ pub struct Take {
     pub animated: bool,
 }
 
+/// Held-out actor frames made of what its model does not do linearly (§6 and the
+/// correctives of [`crate::dataset::actor`]): the jaw partly open (an arc, not the chord a
+/// blend of the full-open shape follows), sideways in half the frames, with one of the
+/// corrective pairs at strong weights. Exact bundles.
+pub fn actor_nonlinear_take(
+    actor: &crate::dataset::actor::Actor,
+    layout: &MarkerLayout,
+    rng: &mut Rng,
+    frames: usize,
+) -> Take {
+    let names = actor.expression_names();
+    let ix = |name: &str| names.iter().position(|n| *n == name);
+    let pairs: Vec<(usize, usize)> = [
+        ("mouthSmile_L", "mouthSmile_R"),
+        ("mouthSmile_L", "jawOpen"),
+        ("mouthSmile_R", "jawOpen"),
+        ("mouthFunnel", "jawOpen"),
+        ("browDown_L", "browInnerUp"),
+        ("browDown_R", "browInnerUp"),
+        ("eyeBlink_L", "eyeSquint_L"),
+        ("eyeBlink_R", "eyeSquint_R"),
+    ]
+    .iter()
+    .filter_map(|(a, b)| Some((ix(a)?, ix(b)?)))
+    .collect();
+    let (jaw_open, jaw_left, jaw_right) = (ix("jawOpen"), ix("jawLeft"), ix("jawRight"));
+    let mut truth = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let mut w = vec![0.0; names.len()];
+        if let Some(j) = jaw_open {
+            w[j] = 0.2 + 0.7 * rng.uniform();
+        }
+        if f % 2 == 1
+            && let Some(side) = if rng.uniform() < 0.5 {
+                jaw_left
+            } else {
+                jaw_right
+            }
+        {
+            w[side] = 0.6 * rng.uniform();
+        }
+        if !pairs.is_empty() {
+            let (a, b) = pairs[rng.below(pairs.len())];
+            w[a] = w[a].max(0.5 + 0.5 * rng.uniform());
+            w[b] = w[b].max(0.5 + 0.5 * rng.uniform());
+        }
+        truth.push(actor.evaluate(&w).positions);
+    }
+    let bundles = truth
+        .iter()
+        .enumerate()
+        .map(|(f, t)| FrameBundles {
+            frame: f as u64,
+            positions: layout
+                .markers
+                .iter()
+                .map(|m| Some(t[m.vertex as usize]))
+                .collect(),
+        })
+        .collect();
+    Take {
+        condition: "nonlinear: jaw + correctives".to_string(),
+        truth,
+        bundles,
+        animated: false,
+    }
+}
+
 /// Builds the benchmark takes of a performance: `static_truth` frames under exact, noisy
 /// and missing conditions, and the animated `anim_truth` with exact bundles.
 pub fn takes(
@@ -750,7 +818,9 @@ pub fn run_benchmark(config: &BenchConfig) -> Result<Vec<Row>, String> {
             .iter()
             .map(|w| a.evaluate(w).positions)
             .collect();
-        let t = config.selected(takes(&layout, &stat, &anim, 4));
+        let mut t = takes(&layout, &stat, &anim, 4);
+        t.push(actor_nonlinear_take(&a, &layout, &mut rng, frames));
+        let t = config.selected(t);
         {
             rows.extend(run_dataset_with(
                 "actor",
