@@ -177,13 +177,20 @@ pub fn estimate_pose(
 #[derive(Debug, Clone, Default)]
 pub struct RigFitCache {
     present: Vec<bool>,
+    /// The unskinned shapes at the present markers, `marker × shape` (row per marker).
+    basis: Vec<Vector3<f64>>,
     gram: Option<nalgebra::DMatrix<f64>>,
 }
 
 /// Rounds of the rig fit in [`refine_pose`].
 const RIG_FIT_ROUNDS: usize = 6;
-/// Coordinate-descent sweeps over the shape weights per round.
+/// Most coordinate-descent sweeps over the shape weights per round.
 const WEIGHT_SWEEPS: usize = 40;
+/// The sweeps stop when no weight moved by more than this.
+const WEIGHT_CONVERGED: f64 = 1e-6;
+/// The rounds stop when the pose moved by less than this (radians; the protrusion counts
+/// per 100 mm).
+const POSE_CONVERGED_RAD: f64 = 1e-6;
 
 /// Refines the jaw pose `initial` of a frame whose (head-frame) bundles are `bundles`, by
 /// fitting the dataset as a jaw-skinned blendshape rig to them: `y_m ≈ T_m(θ) (x₀_m +
@@ -224,8 +231,7 @@ pub fn refine_pose(
     if present.is_empty() || n == 0 {
         return initial;
     }
-    // Gram matrix of the unskinned shapes over the present markers.
-    let basis = |s: usize, v: usize| index.displacements[s][v];
+    // The unskinned shapes at the present markers, contiguous, and their Gram matrix.
     let mask: Vec<bool> = index
         .markers
         .iter()
@@ -233,34 +239,49 @@ pub fn refine_pose(
         .map(|(_, y)| y.is_some_and(|y| y.coords.iter().all(|c| c.is_finite())))
         .collect();
     if cache.present != mask || cache.gram.as_ref().is_none_or(|g| g.nrows() != n) {
+        cache.basis.clear();
+        for p in &present {
+            cache
+                .basis
+                .extend(index.displacements.iter().map(|d| d[p.0]));
+        }
+        let rows = &cache.basis;
         let mut gram = nalgebra::DMatrix::<f64>::zeros(n, n);
+        for row in rows.chunks_exact(n) {
+            for a in 0..n {
+                for b in a..n {
+                    gram[(a, b)] += row[a].dot(&row[b]);
+                }
+            }
+        }
         for a in 0..n {
-            for b in a..n {
-                let g: f64 = present
-                    .iter()
-                    .map(|p| basis(a, p.0).dot(&basis(b, p.0)))
-                    .sum();
-                gram[(a, b)] = g;
-                gram[(b, a)] = g;
+            for b in a + 1..n {
+                gram[(b, a)] = gram[(a, b)];
             }
         }
         cache.present = mask;
         cache.gram = Some(gram);
     }
-    let Some(gram) = cache.gram.as_ref() else {
+    let (Some(gram), basis) = (cache.gram.as_ref(), &cache.basis) else {
         return initial;
+    };
+    // The rig's unskinned position of present marker `k` for weights `w`.
+    let unskinned_at = |k: usize, x0: Point3<f64>, w: &[f64]| -> Point3<f64> {
+        let mut p = x0;
+        for (d, &ws) in basis[k * n..(k + 1) * n].iter().zip(w) {
+            if ws != 0.0 {
+                p += d * ws;
+            }
+        }
+        p
     };
     let cost = |pose: &JawPose, w: &[f64]| -> f64 {
         let jaw = rig.jaw_transform(pose);
         present
             .iter()
-            .map(|&(v, y, sw, x0)| {
-                let mut p = x0;
-                for (s, &ws) in w.iter().enumerate() {
-                    if ws != 0.0 {
-                        p += basis(s, v) * ws;
-                    }
-                }
+            .enumerate()
+            .map(|(k, &(_, y, sw, x0))| {
+                let p = unskinned_at(k, x0, w);
                 (rig.skin_point(&jaw, sw, &p) - y).norm_squared()
             })
             .sum()
@@ -268,16 +289,17 @@ pub fn refine_pose(
     let fit_weights = |pose: &JawPose, w: &mut [f64]| {
         let jaw = rig.jaw_transform(pose);
         let mut h = vec![0.0; n];
-        for &(v, y, sw, x0) in &present {
+        for (k, &(_, y, sw, x0)) in present.iter().enumerate() {
             let r = rig.unskin_point(&jaw, sw, &y) - x0;
-            for (s, hs) in h.iter_mut().enumerate() {
-                *hs += basis(s, v).dot(&r);
+            for (hs, d) in h.iter_mut().zip(&basis[k * n..(k + 1) * n]) {
+                *hs += d.dot(&r);
             }
         }
         let mut gw: Vec<f64> = (0..n)
             .map(|a| (0..n).map(|b| gram[(a, b)] * w[b]).sum())
             .collect();
         for _ in 0..WEIGHT_SWEEPS {
+            let mut largest: f64 = 0.0;
             for s in 0..n {
                 let d = gram[(s, s)];
                 if d <= 1e-12 {
@@ -290,7 +312,11 @@ pub fn refine_pose(
                         *g += gram[(a, s)] * delta;
                     }
                     w[s] = new;
+                    largest = largest.max(delta.abs());
                 }
+            }
+            if largest < WEIGHT_CONVERGED {
+                break;
             }
         }
     };
@@ -298,15 +324,8 @@ pub fn refine_pose(
         let mut pose = pose;
         let unskinned: Vec<(Point3<f64>, f64, Point3<f64>)> = present
             .iter()
-            .map(|&(v, y, sw, x0)| {
-                let mut p = x0;
-                for (s, &ws) in w.iter().enumerate() {
-                    if ws != 0.0 {
-                        p += basis(s, v) * ws;
-                    }
-                }
-                (p, sw, y)
-            })
+            .enumerate()
+            .map(|(k, &(_, y, sw, x0))| (unskinned_at(k, x0, w), sw, y))
             .collect();
         let residuals = |q: &JawPose| -> Vec<Vector3<f64>> {
             let jaw = rig.jaw_transform(q);
@@ -362,8 +381,16 @@ pub fn refine_pose(
     fit_weights(&pose, &mut w);
     let start = cost(&initial, &w);
     for _ in 0..RIG_FIT_ROUNDS {
-        pose = fit_pose(pose, &w);
+        let next = fit_pose(pose, &w);
+        let moved = (next.open_rad - pose.open_rad)
+            .abs()
+            .max((next.lateral_rad - pose.lateral_rad).abs())
+            .max((next.forward_mm - pose.forward_mm).abs() * 1e-2);
+        pose = next;
         fit_weights(&pose, &mut w);
+        if moved < POSE_CONVERGED_RAD {
+            break;
+        }
     }
     if cost(&pose, &w) < start {
         pose
