@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used)]
 
 use helmcap::dataset::actor::{Actor, ActorParams};
-use helmcap::dataset::{Dataset, Shape};
+use helmcap::dataset::Dataset;
 use helmcap::enhance::{EnhanceParams, Enhancer, VoluntaryRegions};
 use nalgebra::Point3;
 
@@ -39,19 +39,7 @@ fn setup() -> (Actor, Actor, Enhancer) {
 /// a half-raised brow its half-deep furrows). Held-out poses stay mixes of several
 /// expressions, which no frame holds.
 fn performance_database(actor: &Actor) -> Dataset {
-    let mut dataset = actor.to_dataset();
-    let names: Vec<String> = dataset.shapes.iter().map(|s| s.name.clone()).collect();
-    for name in &names {
-        for w in [0.25, 0.5, 0.75] {
-            let pose = actor.evaluate(&actor.weights(&[(name.as_str(), w)]));
-            dataset.shapes.push(Shape {
-                name: format!("{name}@{w}"),
-                positions: pose.positions,
-                jaw: Some(pose.jaw),
-            });
-        }
-    }
-    dataset
+    actor.performance_dataset(&[0.25, 0.5, 0.75])
 }
 
 /// Mixed poses that are not database shapes (each combines several expressions at

@@ -421,7 +421,7 @@ pub fn dense_stages(
     let solver = Solver::lgi(index, &params)?;
     let enhancer = if enhance {
         let params = super::enhance::read_params(None)?;
-        let (_, enhancer) = super::enhance::build_enhancer(&dataset.dataset, &params)?;
+        let (_, enhancer) = super::enhance::build_enhancer(&dataset.dataset, &params, true)?;
         Some(Arc::new(enhancer))
     } else {
         None

@@ -54,7 +54,7 @@ pub fn run(args: RetimeArgs) -> anyhow::Result<()> {
         .with_context(|| format!("reading {}", args.from.display()))?;
     let last =
         read_obj_positions(&args.to).with_context(|| format!("reading {}", args.to.display()))?;
-    let (dataset, enhancer) = build_enhancer(&args.database, &params)?;
+    let (dataset, enhancer) = build_enhancer(&args.database, &params, false)?;
     let sequences: Vec<Sequence> = match (&args.sequences, builtin_params(&args.database)?) {
         (Some(dir), _) => {
             let mut subdirs: Vec<PathBuf> = std::fs::read_dir(dir)

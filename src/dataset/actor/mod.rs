@@ -463,4 +463,28 @@ impl Actor {
             jaw: Some(self.rig.clone()),
         }
     }
+
+    /// The actor as a detail-enhancement database in the sense of Bermano et al. 2014
+    /// §4.1: performance sequences from the neutral to each extreme, not the extremes
+    /// alone. Every expression at each weight of `onsets` joins [`Actor::to_dataset`]'s
+    /// neutral and full-weight shapes, named `NAME@WEIGHT`. Wrinkle depths follow
+    /// smoothstep of the activation, not the weight, so these frames hold what a convex
+    /// mix of the neutral and the full shape cannot: a half-raised brow's half-deep
+    /// furrows. Weights outside (0, 1) are skipped.
+    pub fn performance_dataset(&self, onsets: &[f64]) -> Dataset {
+        let mut dataset = self.to_dataset();
+        for (i, name) in expressions::NAMES.iter().enumerate() {
+            for &w in onsets.iter().filter(|w| **w > 0.0 && **w < 1.0) {
+                let mut weights = vec![0.0; expressions::NAMES.len()];
+                weights[i] = w;
+                let pose = self.evaluate(&weights);
+                dataset.shapes.push(Shape {
+                    name: format!("{name}@{w}"),
+                    positions: pose.positions,
+                    jaw: Some(pose.jaw),
+                });
+            }
+        }
+        dataset
+    }
 }
