@@ -3,8 +3,8 @@
 //! the true wrinkled poses. Run with `--nocapture` for the figures.
 #![allow(clippy::unwrap_used)]
 
-use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::dataset::Dataset;
+use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::enhance::{EnhanceParams, Enhancer, VoluntaryRegions};
 use nalgebra::Point3;
 
