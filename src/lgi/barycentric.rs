@@ -482,7 +482,10 @@ impl TripleTable {
     /// and a lower bound of its distance to the tetrahedron (the largest distance outside
     /// one of its face planes; 0 inside), or `None` when that bound exceeds `tol_mm`.
     /// `inv_area2[f]` is `1 / (2 · area)` of triple `f`'s triangle.
-    #[inline]
+    ///
+    /// The reference the per-frame scan's near codes reproduce
+    /// ([`TripleTable::fill_used_coded_near`]); only the tests call it.
+    #[cfg(test)]
     pub fn near(
         &self,
         faces: &[u32; 4],
@@ -584,21 +587,6 @@ impl UsedTriples {
             f(usize::from(j), usize::from(k), &self.smallest[start..end]);
             start = end;
         }
-    }
-
-    /// Every triple as `(index, [i, j, k])`, ascending.
-    pub fn iter(&self) -> impl Iterator<Item = (u32, [u16; 3])> + '_ {
-        let mut start = 0usize;
-        self.groups.iter().flat_map(move |&(j, k, end)| {
-            let range = start..end as usize;
-            start = end as usize;
-            self.smallest[range].iter().map(move |&i| {
-                (
-                    triple_index(usize::from(i), usize::from(j), usize::from(k)) as u32,
-                    [i, j, k],
-                )
-            })
-        })
     }
 }
 

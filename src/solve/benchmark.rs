@@ -355,7 +355,26 @@ pub fn actor_nonlinear_take(
         }
         truth.push(actor.evaluate(&w).positions);
     }
-    let bundles = truth
+    let bundles = sample_bundles(layout, &truth, rng, 0.0, 0.0);
+    Take {
+        condition: "nonlinear: jaw + correctives".to_string(),
+        truth,
+        bundles,
+        animated: false,
+    }
+}
+
+/// The bundles of the `layout`'s markers on each frame of `truth`: Gaussian noise of
+/// `sigma` mm per coordinate, each marker missing with probability `missing` (`rng` is
+/// drawn from only for a non-zero `sigma` or `missing`).
+fn sample_bundles(
+    layout: &MarkerLayout,
+    truth: &[Vec<Point3<f64>>],
+    rng: &mut Rng,
+    sigma: f64,
+    missing: f64,
+) -> Vec<FrameBundles> {
+    truth
         .iter()
         .enumerate()
         .map(|(f, t)| FrameBundles {
@@ -363,16 +382,20 @@ pub fn actor_nonlinear_take(
             positions: layout
                 .markers
                 .iter()
-                .map(|m| Some(t[m.vertex as usize]))
+                .map(|m| {
+                    let p = t[m.vertex as usize];
+                    if missing > 0.0 && rng.uniform() < missing {
+                        return None;
+                    }
+                    Some(if sigma > 0.0 {
+                        p + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma
+                    } else {
+                        p
+                    })
+                })
                 .collect(),
         })
-        .collect();
-    Take {
-        condition: "nonlinear: jaw + correctives".to_string(),
-        truth,
-        bundles,
-        animated: false,
-    }
+        .collect()
 }
 
 /// Builds the benchmark takes of a performance: `static_truth` frames under exact, noisy
@@ -384,30 +407,6 @@ pub fn takes(
     seed: u64,
 ) -> Vec<Take> {
     let mut rng = Rng::new(seed);
-    let sample = |truth: &[Vec<Point3<f64>>], rng: &mut Rng, sigma: f64, missing: f64| {
-        truth
-            .iter()
-            .enumerate()
-            .map(|(f, t)| FrameBundles {
-                frame: f as u64,
-                positions: layout
-                    .markers
-                    .iter()
-                    .map(|m| {
-                        let p = t[m.vertex as usize];
-                        if missing > 0.0 && rng.uniform() < missing {
-                            return None;
-                        }
-                        Some(if sigma > 0.0 {
-                            p + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma
-                        } else {
-                            p
-                        })
-                    })
-                    .collect(),
-            })
-            .collect::<Vec<_>>()
-    };
     let mut out = Vec::new();
     for (name, sigma, missing) in [
         ("exact", 0.0, 0.0),
@@ -418,7 +417,7 @@ pub fn takes(
         out.push(Take {
             condition: name.to_string(),
             truth: static_truth.to_vec(),
-            bundles: sample(static_truth, &mut rng, sigma, missing),
+            bundles: sample_bundles(layout, static_truth, &mut rng, sigma, missing),
             animated: false,
         });
     }
@@ -426,7 +425,7 @@ pub fn takes(
         out.push(Take {
             condition: format!("animated {} frames", anim_truth.len()),
             truth: anim_truth.to_vec(),
-            bundles: sample(anim_truth, &mut rng, 0.0, 0.0),
+            bundles: sample_bundles(layout, anim_truth, &mut rng, 0.0, 0.0),
             animated: true,
         });
     }
