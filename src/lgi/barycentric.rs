@@ -428,13 +428,13 @@ impl TripleTable {
     /// planes (0 inside).
     #[inline]
     pub fn outside_distance(&self, faces: &[u32; 4], w: &[f64; 4], inv_area2: &[f64]) -> f64 {
+        // Branch-free: the sign of each weight is as good as random here.
         let mut d: f64 = 0.0;
         for k in 0..4 {
-            if w[k] < 0.0 {
-                let f = faces[k] as usize;
-                let t = self.values.get(f).copied().unwrap_or(0.0);
-                d = d.max(t.abs() * inv_area2.get(f).copied().unwrap_or(0.0));
-            }
+            let f = faces[k] as usize;
+            let t = self.values.get(f).copied().unwrap_or(0.0);
+            let outside = f64::from(u8::from(w[k] < 0.0));
+            d = d.max(outside * t.abs() * inv_area2.get(f).copied().unwrap_or(0.0));
         }
         d
     }

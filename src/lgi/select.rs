@@ -195,6 +195,11 @@ pub fn choose(
             q
         }
     };
+    let temporal_per_corner = if previous.is_some() {
+        params.temporal_weight_mm / (dim + 1) as f64
+    } else {
+        0.0
+    };
     let extra = |c: &[usize; 4], w: &[f64; 4]| -> f64 {
         let mut deform = 0.0;
         let mut shared = 0usize;
@@ -202,12 +207,7 @@ pub fn choose(
             deform += w[a] * deform_of[c[a]];
             shared += usize::from(in_previous[c[a]]);
         }
-        let temporal = if previous.is_some() {
-            params.temporal_weight_mm * (dim + 1 - shared) as f64 / (dim + 1) as f64
-        } else {
-            0.0
-        };
-        temporal + TIE_BREAK * deform
+        temporal_per_corner * (dim + 1 - shared) as f64 + TIE_BREAK * deform
     };
 
     let mut best: Option<([u16; 4], [f64; 4], bool, f64)> = None;
@@ -260,6 +260,14 @@ pub fn choose(
                     self_d2: f64,
                     tol: f64| {
             for_each_containing(mi, grid, table, y, inside, tol, |t, faces, mut w, d| {
+                let self_d2 = self_d2 + d * d;
+                // A near candidate farther than the best one's whole cost loses.
+                if best
+                    .as_ref()
+                    .is_some_and(|b| self_d2 > b.3 * b.3 * (1.0 + 1e-9))
+                {
+                    return;
+                }
                 if tol > 0.0 {
                     // Near, not inside: the closest point's weights, roughly.
                     clamp_convex(&mut w);
@@ -268,7 +276,7 @@ pub fn choose(
                 // marker's corner list, which would be one more stream of memory.
                 let corners =
                     corners_from_faces(&faces).unwrap_or_else(|| mi.simplices.corners[t as usize]);
-                consider(best, corners, w, inside, self_d2 + d * d);
+                consider(best, corners, w, inside, self_d2);
             });
         };
         let mut table = std::mem::take(&mut scratch.table);
@@ -500,15 +508,16 @@ fn for_each_containing(
     }
 }
 
-/// Clamps tiny negative weights to zero and renormalizes to sum 1.
+/// Clamps negative weights to zero and renormalizes to sum 1.
 fn clamp_convex(w: &mut [f64; 4]) {
     for v in w.iter_mut() {
         *v = v.max(0.0);
     }
-    let s: f64 = w.iter().sum();
+    let s = (w[0] + w[1]) + (w[2] + w[3]);
     if s > 0.0 {
+        let inv = 1.0 / s;
         for v in w.iter_mut() {
-            *v /= s;
+            *v *= inv;
         }
     }
 }
