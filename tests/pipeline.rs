@@ -597,3 +597,59 @@ fn enhance_stage_adds_detail_to_every_frame() {
         );
     }
 }
+
+/// The solve stage treats triangulated bundles as noisy by default (`SolveStageArgs`):
+/// forcing the surface through every bundle, as `--exact-bundles` does, spreads each
+/// bundle's triangulation noise over the face. On the demo session the default's mean mesh
+/// error is 0.37 of the exact setting's; the test asks for at most 0.8 of it, so only a
+/// default that stopped helping fails. `--lgi-params` overrides single fields, and a file
+/// with an unknown field is one clear error.
+#[test]
+fn solve_stage_treats_bundles_as_noisy_unless_told() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 12;
+    let session = synth(dir.path(), frames, &[]);
+    let noisy = dir.path().join("noisy");
+    ok(&replay(&session, &noisy, &[]));
+    let exact = dir.path().join("exact");
+    ok(&replay(&session, &exact, &["--exact-bundles"]));
+    let e_noisy = metrics(&noisy)["accuracy"]["mesh_mean_mm"]
+        .as_f64()
+        .unwrap();
+    let e_exact = metrics(&exact)["accuracy"]["mesh_mean_mm"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        e_noisy < 0.8 * e_exact,
+        "default {e_noisy} mm, --exact-bundles {e_exact} mm"
+    );
+
+    // A file setting one field: the others keep the pipeline's defaults (no pass-through),
+    // so the surface still does not copy the noise.
+    let params = dir.path().join("lgi.toml");
+    std::fs::write(&params, "bundle_tolerance_mm = 0.3\n").unwrap();
+    let custom = dir.path().join("custom");
+    ok(&replay(
+        &session,
+        &custom,
+        &["--lgi-params", params.to_str().unwrap()],
+    ));
+    let e_custom = metrics(&custom)["accuracy"]["mesh_mean_mm"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        e_custom < 0.8 * e_exact,
+        "tolerance 0.3 without pass-through {e_custom} mm, exact {e_exact} mm"
+    );
+
+    std::fs::write(&params, "bundle_tolerance = 0.3\n").unwrap();
+    let bad = dir.path().join("bad");
+    let o = replay(&session, &bad, &["--lgi-params", params.to_str().unwrap()]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("not LGI parameters") && err.contains("bundle_tolerance"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

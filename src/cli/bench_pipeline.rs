@@ -9,7 +9,6 @@ use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
-use helmcap::lgi::LgiParams;
 use helmcap::pipeline::sources::{LoopSource, PacedSource};
 use helmcap::pipeline::{FrameResult, Metrics, PipelineConfig, SessionMeta, Sink, SinkError};
 use helmcap::sink::{CsvSink, MetricsSink};
@@ -144,7 +143,8 @@ fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfi
         .iter()
         .map(|m| ds.neutral.positions[m.vertex as usize])
         .collect();
-    let params = LgiParams::default();
+    // The pipeline's own default.
+    let params = super::replay::SolveStageArgs::default().lgi_params()?;
     let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
     let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);
     config.solver = Some(Solver::lgi(index, &params)?);

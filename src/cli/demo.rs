@@ -114,6 +114,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         },
         export: vec![Export::Usd, Export::Obj, Export::C3d],
         enhance: args.enhance,
+        solve_stage: Default::default(),
         frames: None,
         no_solve: false,
         skip_bad_frames: false,

@@ -49,6 +49,9 @@ pub struct LiveArgs {
     /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
     #[arg(long)]
     pub enhance: bool,
+    /// Settings of the dense solve.
+    #[command(flatten)]
+    pub solve_stage: super::replay::SolveStageArgs,
     /// Stop after labeling and stabilization (no dense solve, no meshes).
     #[arg(long)]
     pub no_solve: bool,
@@ -147,6 +150,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         args.no_solve,
         args.enhance,
         &args.export,
+        &args.solve_stage,
     )?;
 
     // The cameras start last, once everything slow is built.
