@@ -591,6 +591,14 @@ fn reader_loop(config: &SyncBoxConfig, shared: &Mutex<Shared>, stop: &AtomicBool
                 let mut lines = Vec::new();
                 parser.push(buf.get(..n).unwrap_or_default(), |l| lines.push(l));
                 let mut s = lock(shared);
+                // A silence that this read ends is a loss too, even when no turn of the
+                // loop saw it (the read was already waiting when the timeout passed).
+                let before = health_of(&s, config.timeout_ms, Instant::now());
+                if health == SyncHealth::Healthy && before != SyncHealth::Healthy {
+                    s.counters.losses += 1;
+                    tracing::warn!("sync box: {} {before}", config.port);
+                    health = before;
+                }
                 for line in lines {
                     match line {
                         Ok(line) => {
