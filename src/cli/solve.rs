@@ -63,7 +63,7 @@ pub struct SolveArgs {
     #[arg(long, value_name = "FRAMES")]
     lag: Option<usize>,
     /// LGI: settings for noisy bundles (tetrahedra within 0.5 mm compete; the surface is
-    /// not forced through each bundle).
+    /// not forced through each bundle; cloud points within 0.5 mm merge, see LgiParams::noisy).
     #[arg(long)]
     noisy: bool,
     /// LGI parameters file (TOML with the fields of LgiParams; the flags above override).
@@ -121,6 +121,7 @@ pub fn run(args: SolveArgs) -> anyhow::Result<()> {
     if args.noisy {
         let n = LgiParams::noisy();
         lgi.bundle_tolerance_mm = n.bundle_tolerance_mm;
+        lgi.merge_tolerance_mm = n.merge_tolerance_mm;
         lgi.snap_to_bundles = n.snap_to_bundles;
     }
     if args.smooth > 0 || args.lag.is_some_and(|l| l > 0) {

@@ -13,7 +13,7 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::{LgiError, LgiIndex, LgiParams, TemporalParams};
+use super::{LgiError, LgiIndex, LgiParams};
 use crate::dataset::{Dataset, MarkerLayout};
 
 /// Where an index came from.
@@ -130,14 +130,7 @@ pub fn index_key(dataset: &Dataset, layout: &MarkerLayout, params: &LgiParams) -
         m.vertex.hash(&mut h);
     }
     // Only the build parameters matter; the per-frame ones are neutralized.
-    let p = LgiParams {
-        temporal_weight_mm: 0.0,
-        bundle_tolerance_mm: 0.0,
-        snap_to_bundles: true,
-        smoothing: TemporalParams::default(),
-        ..*params
-    };
-    format!("{p:?}").hash(&mut h);
+    format!("{:?}", params.index_params()).hash(&mut h);
     h.finish()
 }
 
@@ -160,6 +153,19 @@ mod tests {
         assert_eq!(src, IndexSource::Built);
         let (read, src) = load_or_build(&ds, &layout, &params, Some(dir.path())).unwrap();
         assert_eq!(src, IndexSource::Cache);
+        // Per-frame settings share the index; the noisy preset's merging builds another.
+        let per_frame = LgiParams {
+            temporal_weight_mm: 0.2,
+            bundle_tolerance_mm: 0.3,
+            snap_to_bundles: false,
+            ..params
+        };
+        let (_, src) = load_or_build(&ds, &layout, &per_frame, Some(dir.path())).unwrap();
+        assert_eq!(src, IndexSource::Cache);
+        let (noisy, src) =
+            load_or_build(&ds, &layout, &LgiParams::noisy(), Some(dir.path())).unwrap();
+        assert_eq!(src, IndexSource::Built);
+        assert!(noisy.stats.points < built.stats.points);
         for (m, r) in built.markers.iter().zip(&read.markers) {
             assert_eq!(m.patch, r.patch);
             assert_eq!(m.blend, r.blend);

@@ -28,6 +28,7 @@
 //! index of §4–§5, on every core).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
@@ -529,8 +530,9 @@ pub fn run_dataset_with(
                 method.name()
             );
         }
+        let mut other_indexes: Vec<Arc<crate::lgi::LgiIndex>> = Vec::new();
         for take in takes {
-            // LGI variants over the same index: temporal smoothing on the animated take, the
+            // LGI variants: temporal smoothing on the animated take, the
             // noisy-input preset on noisy takes.
             let mut variants: Vec<(String, Option<LgiParams>)> =
                 vec![(method.name().to_string(), None)];
@@ -554,10 +556,30 @@ pub fn run_dataset_with(
                 let mut times = Vec::with_capacity(runs.max(1));
                 let mut cpu_times = Vec::with_capacity(runs.max(1));
                 let mut variant = match (&solver, lgi_params) {
-                    (Solver::Lgi(s), Some(p)) => Some(
-                        crate::lgi::LgiSolver::from_index(s.index().clone(), &p)
-                            .map_err(|e| e.to_string())?,
-                    ),
+                    (Solver::Lgi(s), Some(p)) => {
+                        // The same index unless the variant's build settings differ (the
+                        // noisy preset merges nearby points): built once per dataset.
+                        let index = if p.index_params() == s.index().params.index_params() {
+                            s.index().clone()
+                        } else if let Some(i) = other_indexes
+                            .iter()
+                            .find(|i| i.params.index_params() == p.index_params())
+                        {
+                            i.clone()
+                        } else {
+                            let i = Arc::new(
+                                crate::lgi::LgiIndex::build(dataset, layout, &p)
+                                    .map_err(|e| format!("{name}: {label}: {e}"))?,
+                            );
+                            eprintln!("{name}: {label}: {}", i.stats);
+                            other_indexes.push(i.clone());
+                            i
+                        };
+                        Some(
+                            crate::lgi::LgiSolver::from_index(index, &p)
+                                .map_err(|e| e.to_string())?,
+                        )
+                    }
                     _ => None,
                 };
                 // Solves the take; `keep`: returns every mesh, else drops each one once
