@@ -178,13 +178,32 @@ fn write_body<W: Write>(w: &mut W, mesh: &Mesh, positions: &[Point3<f64>]) -> io
     if let Some(lib) = &mesh.mtllib {
         writeln!(w, "mtllib {lib}")?;
     }
+    // Numbers through `ryu` and `itoa` into a line buffer: formatting is most of the cost
+    // of writing a mesh every frame, and `write!` is several times slower at it.
+    let mut line = Vec::with_capacity(128);
+    let mut floats = ryu::Buffer::new();
+    let mut ints = itoa::Buffer::new();
     for p in positions {
-        writeln!(w, "v {} {} {}", p.x, p.y, p.z)?;
+        line.clear();
+        line.push(b'v');
+        for c in [p.x, p.y, p.z] {
+            line.push(b' ');
+            push_f64(&mut line, &mut floats, c);
+        }
+        line.push(b'\n');
+        w.write_all(&line)?;
     }
     let has_uvs = mesh.has_uvs();
     if has_uvs {
         for t in &mesh.uvs {
-            writeln!(w, "vt {} {}", t.x, t.y)?;
+            line.clear();
+            line.extend_from_slice(b"vt");
+            for c in [t.x, t.y] {
+                line.push(b' ');
+                push_f64(&mut line, &mut floats, c);
+            }
+            line.push(b'\n');
+            w.write_all(&line)?;
         }
     }
     // Material runs in order of their first face (stable, so for equal starts the last
@@ -196,19 +215,32 @@ fn write_body<W: Write>(w: &mut W, mesh: &Mesh, positions: &[Point3<f64>]) -> io
         while let Some(run) = next_run.next_if(|r| r.0 as usize <= f) {
             writeln!(w, "usemtl {}", run.1)?;
         }
-        w.write_all(b"f")?;
+        line.clear();
+        line.push(b'f');
         if has_uvs {
             for (v, t) in mesh.face(f).iter().zip(mesh.face_uv(f)) {
-                write!(w, " {}/{}", v + 1, t + 1)?;
+                line.push(b' ');
+                line.extend_from_slice(ints.format(u64::from(*v) + 1).as_bytes());
+                line.push(b'/');
+                line.extend_from_slice(ints.format(u64::from(*t) + 1).as_bytes());
             }
         } else {
             for v in mesh.face(f) {
-                write!(w, " {}", v + 1)?;
+                line.push(b' ');
+                line.extend_from_slice(ints.format(u64::from(*v) + 1).as_bytes());
             }
         }
-        w.write_all(b"\n")?;
+        line.push(b'\n');
+        w.write_all(&line)?;
     }
     Ok(())
+}
+
+/// Appends `x` as the shortest decimal that reads back to the same `f64`, without a
+/// trailing `.0` (as `{}` writes it; exponents only for very small or large values).
+fn push_f64(out: &mut Vec<u8>, buf: &mut ryu::Buffer, x: f64) {
+    let s = buf.format(x);
+    out.extend_from_slice(s.strip_suffix(".0").unwrap_or(s).as_bytes());
 }
 
 /// Writes a file atomically (see [`crate::atomic_file::write_atomically`]).
@@ -791,6 +823,34 @@ mod tests {
     }
 
     const SQUARE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    /// Coordinates are written as the shortest decimals that read back bit for bit,
+    /// whole numbers without `.0`, tiny and huge ones with an exponent.
+    #[test]
+    fn written_numbers_read_back_exactly() {
+        let m = parse(&format!(
+            "{SQUARE}vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n"
+        ))
+        .unwrap();
+        let positions = [
+            Point3::new(2.0, -0.0, 0.1),
+            Point3::new(-2.5485162262958167e-21, 95.13780939531594, 1e17),
+            Point3::new(123456789.125, -1e-7, f64::MIN_POSITIVE),
+            Point3::new(f64::MAX, -3.0, 1.0 / 3.0),
+        ];
+        let mut text = Vec::new();
+        write_obj_to(&mut text, &m, &positions).unwrap();
+        let text = String::from_utf8(text).unwrap();
+        assert!(text.contains("\nv 2 -0 0.1\n"), "{text}");
+        assert!(text.contains("\nf 1/1 2/2 3/3 4/4\n"), "{text}");
+        let back = parse(&text).unwrap();
+        for (a, b) in back.positions.iter().zip(&positions) {
+            for k in 0..3 {
+                assert_eq!(a[k].to_bits(), b[k].to_bits(), "{} vs {}", a[k], b[k]);
+            }
+        }
+        assert_eq!(back.uvs, m.uvs);
+    }
 
     #[test]
     fn every_index_form() {
