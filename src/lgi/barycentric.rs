@@ -76,6 +76,8 @@ pub struct TripleTable {
     /// Sign codes of `values` ([`SIGN_POS`], [`SIGN_NEG`] or 0 near zero), filled by
     /// [`TripleTable::fill_used_coded`].
     codes: Vec<u8>,
+    /// `rel` by coordinate, for the vectorized full fill (kept to reuse the memory).
+    rel_by_axis: [Vec<f64>; 3],
 }
 
 /// Sign code of a triple value clearly above zero (see [`TetScan`]).
@@ -367,23 +369,17 @@ impl TripleTable {
             self.codes.resize(size.max(NARROW_CODES), 0);
         }
         if used.len() * 4 >= size * 3 {
-            let (xs, ys, zs): (Vec<f64>, Vec<f64>, Vec<f64>) = {
-                let mut xs = Vec::with_capacity(n);
-                let mut ys = Vec::with_capacity(n);
-                let mut zs = Vec::with_capacity(n);
-                for r in &self.rel {
-                    xs.push(r.x);
-                    ys.push(r.y);
-                    zs.push(r.z);
-                }
-                (xs, ys, zs)
-            };
+            for (axis, coords) in self.rel_by_axis.iter_mut().enumerate() {
+                coords.clear();
+                coords.extend(self.rel.iter().map(|r| r[axis]));
+            }
+            let [xs, ys, zs] = &self.rel_by_axis;
             for k in 2..n {
                 for j in 1..k {
                     let c = self.rel[j].cross(&self.rel[k]);
                     let base = triple_index(0, j, k);
                     let vals = &mut self.values[base..base + j];
-                    for (((v, &px), &py), &pz) in vals.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
+                    for (((v, &px), &py), &pz) in vals.iter_mut().zip(xs).zip(ys).zip(zs) {
                         *v = px * c.x + py * c.y + pz * c.z;
                     }
                     for (i, (cd, &v)) in self.codes[base..base + j]

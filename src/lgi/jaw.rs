@@ -8,6 +8,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::LgiParams;
 use super::index::JawSpace;
+use crate::baseline::blendshape::box_qp;
 use crate::dataset::{Dataset, JawPose, JawRig};
 
 /// The jaw space of `dataset` when `params.use_jaw` is set, the dataset has a jaw rig and
@@ -184,10 +185,12 @@ pub struct RigFitCache {
 
 /// Rounds of the rig fit in [`refine_pose`].
 const RIG_FIT_ROUNDS: usize = 6;
-/// Most coordinate-descent sweeps over the shape weights per round.
-const WEIGHT_SWEEPS: usize = 40;
-/// The sweeps stop when no weight moved by more than this.
-const WEIGHT_CONVERGED: f64 = 1e-6;
+/// Most active-set iterations of the weights' box QP per round.
+const WEIGHT_ITERATIONS: usize = 200;
+/// Ridge added to the Gram matrix, relative to its mean diagonal: keeps the box QP's
+/// Cholesky factorizations defined when shapes coincide at the markers, far below any
+/// weight that matters.
+const GRAM_RIDGE: f64 = 1e-9;
 /// The rounds stop when the pose moved by less than this (radians; the protrusion counts
 /// per 100 mm).
 const POSE_CONVERGED_RAD: f64 = 1e-6;
@@ -196,7 +199,7 @@ const POSE_CONVERGED_RAD: f64 = 1e-6;
 /// fitting the dataset as a jaw-skinned blendshape rig to them: `y_m ≈ T_m(θ) (x₀_m +
 /// Σ_n w_n b*_n,m)` over the present markers `m`, with `b*_n` the unskinned shapes of
 /// Eq. (2) and `w_n ∈ [0, 1]`. Alternately: the weights given the pose (the bundles
-/// unskinned by `θ`, then bounded least squares by coordinate descent), and the pose given
+/// unskinned by `θ`, then bounded least squares by the exact box QP), and the pose given
 /// the weights (Gauss–Newton on the three jaw parameters).
 ///
 /// §6 leaves the per-frame jaw estimate to "one of the usual methods for head and jaw
@@ -215,16 +218,17 @@ pub fn refine_pose(
         return initial;
     };
     let rig = &space.rig;
-    // Present markers: vertex, bundle, skinning weight, rest position.
+    // Present markers (finite bundles): vertex, bundle, skinning weight, rest position.
+    let usable = |y: &Option<Point3<f64>>| y.filter(|y| y.coords.iter().all(|c| c.is_finite()));
+    let mask: Vec<bool> = bundles.iter().map(|y| usable(y).is_some()).collect();
     let present: Vec<(usize, Point3<f64>, f64, Point3<f64>)> = index
         .markers
         .iter()
         .zip(bundles)
         .filter_map(|(mi, y)| {
-            let y = (*y)?;
+            let y = usable(y)?;
             let v = mi.vertex as usize;
-            (y.coords.iter().all(|c| c.is_finite()))
-                .then(|| (v, y, rig.weights[v], index.neutral[v]))
+            Some((v, y, rig.weights[v], index.neutral[v]))
         })
         .collect();
     let n = index.displacements.len();
@@ -232,12 +236,6 @@ pub fn refine_pose(
         return initial;
     }
     // The unskinned shapes at the present markers, contiguous, and their Gram matrix.
-    let mask: Vec<bool> = index
-        .markers
-        .iter()
-        .zip(bundles)
-        .map(|(_, y)| y.is_some_and(|y| y.coords.iter().all(|c| c.is_finite())))
-        .collect();
     if cache.present != mask || cache.gram.as_ref().is_none_or(|g| g.nrows() != n) {
         cache.basis.clear();
         for p in &present {
@@ -258,6 +256,10 @@ pub fn refine_pose(
             for b in a + 1..n {
                 gram[(b, a)] = gram[(a, b)];
             }
+        }
+        let ridge = GRAM_RIDGE * gram.diagonal().mean().max(f64::MIN_POSITIVE);
+        for a in 0..n {
+            gram[(a, a)] += ridge;
         }
         cache.present = mask;
         cache.gram = Some(gram);
@@ -286,39 +288,20 @@ pub fn refine_pose(
             })
             .sum()
     };
+    // The bounded least squares of the weights given the pose: the project's exact box QP
+    // (the blendshape baseline's), warm-started from the previous round's weights.
     let fit_weights = |pose: &JawPose, w: &mut [f64]| {
         let jaw = rig.jaw_transform(pose);
-        let mut h = vec![0.0; n];
+        let mut h = nalgebra::DVector::<f64>::zeros(n);
         for (k, &(_, y, sw, x0)) in present.iter().enumerate() {
             let r = rig.unskin_point(&jaw, sw, &y) - x0;
             for (hs, d) in h.iter_mut().zip(&basis[k * n..(k + 1) * n]) {
                 *hs += d.dot(&r);
             }
         }
-        let mut gw: Vec<f64> = (0..n)
-            .map(|a| (0..n).map(|b| gram[(a, b)] * w[b]).sum())
-            .collect();
-        for _ in 0..WEIGHT_SWEEPS {
-            let mut largest: f64 = 0.0;
-            for s in 0..n {
-                let d = gram[(s, s)];
-                if d <= 1e-12 {
-                    continue;
-                }
-                let new = (w[s] + (h[s] - gw[s]) / d).clamp(0.0, 1.0);
-                let delta = new - w[s];
-                if delta != 0.0 {
-                    for (a, g) in gw.iter_mut().enumerate() {
-                        *g += gram[(a, s)] * delta;
-                    }
-                    w[s] = new;
-                    largest = largest.max(delta.abs());
-                }
-            }
-            if largest < WEIGHT_CONVERGED {
-                break;
-            }
-        }
+        let start = nalgebra::DVector::from_column_slice(w);
+        let solved = box_qp(gram, &h, &start, WEIGHT_ITERATIONS);
+        w.copy_from_slice(solved.as_slice());
     };
     let fit_pose = |pose: JawPose, w: &[f64]| -> JawPose {
         let mut pose = pose;

@@ -458,9 +458,9 @@ fn refine_variants(
     var
 }
 
-/// Calls `hit(t, w, d)` for the tetrahedra `t` of `mi` containing the point `y` whose
-/// orientations and codes `table` holds, with its barycentric coordinates `w` and distance
-/// `d` (0); with `tol_mm > 0` (and `table` coded for it, see
+/// Calls `hit(t, faces, w, d)` for the tetrahedra `t` of `mi` containing the point `y`
+/// whose orientations and codes `table` holds, with its face triples, its barycentric
+/// coordinates `w` and distance `d` (0); with `tol_mm > 0` (and `table` coded for it, see
 /// [`TripleTable::fill_used_coded_near`]) for those within about `tol_mm` of it instead
 /// (distance bound from the face planes). Scans the grid cell of `y` when it lists less
 /// than half the tetrahedra, else every tetrahedron; nothing when `y` is outside the grid
