@@ -26,6 +26,37 @@ impl GrayImage {
     }
 }
 
+/// How a colour image becomes the 8-bit grey image the detector reads (grey images are
+/// taken as they are).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum GrayConversion {
+    /// Rec. 601 luma: 0.299 R + 0.587 G + 0.114 B.
+    #[default]
+    Luma,
+    /// One channel: 0 red, 1 green, 2 blue.
+    Channel(usize),
+    /// Distance to a dot colour (RGB, 8-bit levels), saturated at 255: dots of that
+    /// colour come out dark whatever their brightness.
+    DotColor([f64; 3]),
+}
+
+impl GrayConversion {
+    /// The grey level of one 8-bit RGB pixel.
+    pub fn convert(&self, rgb: [u8; 3]) -> u8 {
+        let [r, g, b] = rgb.map(f64::from);
+        match *self {
+            GrayConversion::Luma => (0.299 * r + 0.587 * g + 0.114 * b).round() as u8,
+            GrayConversion::Channel(c) => rgb[c.min(2)],
+            GrayConversion::DotColor([cr, cg, cb]) => {
+                ((r - cr).powi(2) + (g - cg).powi(2) + (b - cb).powi(2))
+                    .sqrt()
+                    .round()
+                    .min(255.0) as u8
+            }
+        }
+    }
+}
+
 /// Reads a PNG as 8-bit grayscale: gray is taken as is, 16-bit is scaled down, colour is
 /// converted with the Rec. 601 luma weights (0.299 R + 0.587 G + 0.114 B), alpha dropped.
 ///

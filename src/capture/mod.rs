@@ -13,7 +13,7 @@ pub mod recorder;
 mod replay;
 pub mod syncbox;
 
-pub use image::{GrayImage, read_png_gray};
+pub use image::{GrayConversion, GrayImage, read_png_gray};
 pub use live::{LiveConfig, LiveFrame, LiveSource, LiveStats, StampClock};
 pub use recorder::{RecordReport, Recorder, RecorderParams};
 pub use replay::{Replay, ReplayParams, ReplayStats, SessionInfo, StereoFrame};

@@ -22,7 +22,8 @@ pub enum StereoError {
 }
 
 /// Pairing settings.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct PairParams {
     /// Triangulation and its gates (the reprojection gate is the epipolar tolerance).
     pub triangulate: TriangulateParams,

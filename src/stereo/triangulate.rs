@@ -8,7 +8,8 @@ use super::StereoError;
 use crate::camera::StereoRig;
 
 /// Triangulation settings.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct TriangulateParams {
     /// Reject a bundle whose RMS reprojection error exceeds this, pixels. Default 1.5.
     pub max_reprojection_px: f64,

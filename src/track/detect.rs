@@ -22,7 +22,8 @@ use nalgebra::Point2;
 use crate::capture::GrayImage;
 
 /// Detection settings.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct DetectParams {
     /// Look for bright dots instead of dark ones. Default false.
     pub bright: bool,
@@ -61,6 +62,12 @@ pub struct DetectParams {
     /// [`DetectParams::min_peak_contrast_dn`] (ink is much darker than a crease or a
     /// shading band). Default 2.
     pub elongated_min_contrast_factor: f64,
+    /// Smallest dot diameter to look for, pixels (a capture profile derives it from the
+    /// dot size, the camera distances and the lens). Default 3.
+    pub min_dot_px: f64,
+    /// Largest dot diameter to look for, pixels (see [`DetectParams::min_dot_px`]).
+    /// Default 40.
+    pub max_dot_px: f64,
     /// Region of interest `(x0, y0, x1, y1)`, pixels, end exclusive (None: whole image).
     pub roi: Option<(u32, u32, u32, u32)>,
 }
@@ -80,6 +87,8 @@ impl Default for DetectParams {
             elongated_min_width_px: 2.0,
             elongated_min_roundness: 0.15,
             elongated_min_contrast_factor: 2.0,
+            min_dot_px: 3.0,
+            max_dot_px: 40.0,
             roi: None,
         }
     }

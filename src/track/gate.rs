@@ -14,7 +14,8 @@
 //! below the truth bias the median low only until the next update widens it.
 
 /// Settings of the adaptive epipolar gate.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct EpipolarGateParams {
     /// Scale the gate with the measured noise (false: the gate stays at the floor).
     /// Default true.

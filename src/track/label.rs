@@ -54,7 +54,8 @@ use crate::stereo::{
 };
 
 /// Labeling settings.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct LabelParams {
     /// Pairing and triangulation for acquisition (epipolar gate, depth range, ambiguity).
     /// Default [`PairParams::default`].
