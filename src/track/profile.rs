@@ -297,7 +297,10 @@ mod tests {
     fn dot_sizes_follow_the_rig() {
         // 2.4 mm dots, 100-300 mm, a 700 px lens: 4.2 to 21 px.
         let (lo, hi) = dot_size_range_px(2.4, (100.0, 300.0), 700.0, 700.0);
-        assert!((lo - 4.2).abs() < 1e-9 && (hi - 21.0).abs() < 1e-9, "{lo} {hi}");
+        assert!(
+            (lo - 4.2).abs() < 1e-9 && (hi - 21.0).abs() < 1e-9,
+            "{lo} {hi}"
+        );
         // Tiny dots far away never ask for blobs under 2 px.
         assert_eq!(dot_size_range_px(1.0, (200.0, 900.0), 300.0, 300.0).0, 2.0);
     }
