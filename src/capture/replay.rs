@@ -31,6 +31,9 @@ pub struct SessionInfo {
     pub timecode_rate: Option<TimecodeRate>,
     /// Per frame: index, timestamp (ns) and timecode (None where `frames.csv` has none).
     pub frames: Vec<(usize, u64, Option<Timecode>)>,
+    /// The capture profile `session.toml` names (`profile = "..."`, relative to the
+    /// session folder), if any.
+    pub profile: Option<PathBuf>,
 }
 
 /// One stereo frame.
@@ -61,6 +64,7 @@ struct SessionToml {
     cameras: Vec<String>,
     calibration: Option<String>,
     timecode: Option<TimecodeToml>,
+    profile: Option<String>,
 }
 
 #[derive(serde::Deserialize)]
@@ -208,6 +212,7 @@ impl Replay {
                 cameras: session.cameras,
                 timecode_rate,
                 frames,
+                profile: session.profile.map(|p| root.join(p)),
             },
             rig,
             params,

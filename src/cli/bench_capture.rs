@@ -11,9 +11,11 @@ use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::synth::{AnimationParams, Performer, SynthParams, animation, default_rig};
 use helmcap::track::{
-    DetectParams, Detection, LabelParams, Labeler, MarkerDetector, detect_markers,
+    DetectParams, Detection, Labeler, MarkerDetector, detect_markers,
 };
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
 /// Arguments of `helmcap bench capture`.
 #[derive(Debug, clap::Args)]
@@ -32,6 +34,13 @@ pub struct CaptureBenchArgs {
     /// table.
     #[arg(long, value_delimiter = ',', default_value = "0,0.25,0.5,1")]
     noise_px: Vec<f64>,
+    /// Capture profile (default: the one the session names, else the built-in defaults).
+    #[arg(long, value_name = "TOML")]
+    profile: Option<PathBuf>,
+    /// Acquisition benchmark: blobs of a dot's size added at random places to each image
+    /// of 20 frames, each frame acquired from scratch (0: skip).
+    #[arg(long, default_value_t = 500)]
+    clutter: usize,
 }
 
 /// Runs the capture benchmark and prints the figures.
@@ -78,6 +87,10 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .rig()
         .context("the session has no calibration")?
         .clone();
+    let profile =
+        super::replay::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
+    let detect_params = profile.detect_params(Some(&rig));
+    let label_params = profile.label.clone();
     let frames: Vec<StereoFrame> = replay.collect::<Result<_, _>>()?;
     anyhow::ensure!(!frames.is_empty(), "the session has no frames");
     let neutral: Vec<Point3<f64>> = layout
@@ -85,19 +98,14 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| actor.neutral().positions[m.vertex as usize])
         .collect();
-    let new_labeler = || {
-        Labeler::new(
-            rig.clone(),
-            &layout,
-            neutral.clone(),
-            LabelParams::default(),
-        )
-    };
+    let new_labeler = || Labeler::new(rig.clone(), &layout, neutral.clone(), label_params.clone());
 
     // Throughput: detection in predicted ROIs (both cameras in parallel) + labeling and
     // triangulation.
     let mut rates = Vec::new();
     let mut cpu_ms = Vec::new();
+    let mut frame_ms: Vec<Vec<f64>> = Vec::new();
+    let mut acquiring_ms: Vec<f64> = Vec::new();
     let mut labeled = 0;
     let load_before = load_average();
     for _ in 0..args.runs.max(1) {
@@ -106,19 +114,28 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         let cpu = helmcap::solve::benchmark::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
+        let mut times = Vec::with_capacity(frames.len());
         for f in &frames {
+            let tf = Instant::now();
             let rois = labeler.predicted_rois();
             let params = rois.map(|roi| DetectParams {
                 roi,
-                ..DetectParams::default()
+                ..detect_params.clone()
             });
             let [d0, d1] = &mut detectors;
             let (a, b) = rayon::join(
                 || d0.detect(&f.images[0], &params[0]),
                 || d1.detect(&f.images[1], &params[1]),
             );
-            labeled += labeler.process(f.index, [&a, &b]).stats.labeled;
+            let out = labeler.process(f.index, [&a, &b]);
+            labeled += out.stats.labeled;
+            let ms = 1e3 * tf.elapsed().as_secs_f64();
+            if out.stats.acquiring {
+                acquiring_ms.push(ms);
+            }
+            times.push(ms);
         }
+        frame_ms.push(times);
         rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
         if let (Some(a), Some(b)) = (cpu, helmcap::solve::benchmark::process_cpu_seconds()) {
             cpu_ms.push(1e3 * (b - a) / frames.len() as f64);
@@ -138,6 +155,29 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         rates[rates.len() - 1],
         labeled as f64 / frames.len() as f64
     );
+    // Per-frame time of the run with the median rate.
+    let mut run_means: Vec<(f64, usize)> = frame_ms
+        .iter()
+        .enumerate()
+        .map(|(k, t)| (t.iter().sum::<f64>() / t.len().max(1) as f64, k))
+        .collect();
+    run_means.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some(&(mean, k)) = run_means.get(run_means.len() / 2) {
+        let mut t = frame_ms[k].clone();
+        t.sort_by(f64::total_cmp);
+        let p99 = t[((t.len() as f64 * 0.99).ceil() as usize).clamp(1, t.len()) - 1];
+        acquiring_ms.sort_by(f64::total_cmp);
+        println!(
+            "track stage per stereo frame (detect both cameras + label): mean {mean:.2} ms, \
+             p99 {p99:.2} ms, max {:.2} ms; acquiring frames {} (median {:.1} ms)",
+            t[t.len() - 1],
+            acquiring_ms.len() / args.runs.max(1),
+            acquiring_ms
+                .get(acquiring_ms.len() / 2)
+                .copied()
+                .unwrap_or(f64::NAN)
+        );
+    }
     if let Some(m) = cpu_ms.get(cpu_ms.len() / 2) {
         println!(
             "CPU time (all threads) per stereo frame: median {m:.2} ms; 1-minute load average \
@@ -152,8 +192,17 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let truth = read_truth_in_cam0(&session, &layout)?;
     let detections: Vec<[Vec<Detection>; 2]> = frames
         .iter()
-        .map(|f| [0, 1].map(|c| detect_markers(&f.images[c], &DetectParams::default())))
+        .map(|f| [0, 1].map(|c| detect_markers(&f.images[c], &detect_params)))
         .collect();
+    if args.clutter > 0 {
+        acquisition_with_clutter(
+            &frames,
+            &detections,
+            &detect_params,
+            args.clutter,
+            &new_labeler,
+        )?;
+    }
     let f_px = rig.cam0.fx().min(rig.cam1.fx());
     let b_mm = rig.baseline_mm();
     let has_detectable = projections
@@ -166,7 +215,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let base_sigma = 0.24; // Centroid RMS error of the detector on these images (tests).
     for &sigma in &args.noise_px {
         let mut labeler = new_labeler()?;
-        let mut rng = Jitter(0x006e_6f69_7365 ^ sigma.to_bits());
+        let mut rng = Jitter(StdRng::seed_from_u64(0x006e_6f69_7365 ^ sigma.to_bits()));
         let (mut visible, mut right, mut wrong, mut sq, mut z_sum) = (0, 0, 0, 0.0, 0.0);
         let (mut right_visible, mut detectable, mut right_detectable) = (0, 0, 0);
         let mut off_dot = 0;
@@ -256,6 +305,58 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     if args.session.is_none() {
         let _ = std::fs::remove_dir_all(&session);
     }
+    Ok(())
+}
+
+/// Acquisition from scratch on 20 frames with `clutter` blobs of a dot's size added at
+/// random places to each image: the time of each attempt, and how many markers it labels.
+fn acquisition_with_clutter(
+    frames: &[StereoFrame],
+    detections: &[[Vec<Detection>; 2]],
+    params: &DetectParams,
+    clutter: usize,
+    new_labeler: &dyn Fn() -> Result<Labeler, helmcap::track::LabelError>,
+) -> anyhow::Result<()> {
+    let mut rng = StdRng::seed_from_u64(0x00c1_0773);
+    let step = (frames.len() / 20).max(1);
+    let mut times = Vec::new();
+    let mut labeled = Vec::new();
+    for (f, dets) in frames.iter().zip(detections).step_by(step).take(20) {
+        let noisy: Vec<Vec<Detection>> = (0..2)
+            .map(|c| {
+                let (w, h) = (f.images[c].width as f64, f.images[c].height as f64);
+                let mut d = dets[c].clone();
+                for _ in 0..clutter {
+                    let diameter = rng.random_range(params.min_dot_px..=params.max_dot_px.max(params.min_dot_px));
+                    d.push(Detection {
+                        centre_px: Point2::new(rng.random_range(0.0..w), rng.random_range(0.0..h)),
+                        area_px: (0.785 * diameter * diameter) as usize,
+                        roundness: rng.random_range(0.5..1.0),
+                        contrast_dn: rng.random_range(20.0..120.0),
+                        quality: rng.random_range(0.2..0.8),
+                        diameter_px: diameter,
+                    });
+                }
+                d
+            })
+            .collect();
+        let mut labeler = new_labeler()?;
+        let t = Instant::now();
+        let out = labeler.process(f.index, [&noisy[0], &noisy[1]]);
+        times.push(1e3 * t.elapsed().as_secs_f64());
+        labeled.push(out.stats.labeled);
+    }
+    times.sort_by(f64::total_cmp);
+    let acquired = labeled.iter().filter(|&&n| n > 0).count();
+    println!(
+        "acquisition with {clutter} clutter blobs per image added ({} frames, each from scratch): \
+         median {:.1} ms, max {:.1} ms per attempt; {acquired} acquired on the first attempt, \
+         {:.1} markers labeled on average",
+        times.len(),
+        times.get(times.len() / 2).copied().unwrap_or(f64::NAN),
+        times.last().copied().unwrap_or(f64::NAN),
+        labeled.iter().sum::<usize>() as f64 / labeled.len().max(1) as f64
+    );
     Ok(())
 }
 
@@ -364,16 +465,12 @@ fn read_truth_in_cam0(
     Ok(out)
 }
 
-/// Seeded Gaussian jitter (SplitMix64 + Box-Muller).
-struct Jitter(u64);
+/// Seeded Gaussian jitter (Box-Muller).
+struct Jitter(StdRng);
 
 impl Jitter {
     fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        self.0.random::<f64>()
     }
 
     fn normal(&mut self) -> f64 {

@@ -102,6 +102,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let replay_args = ReplayArgs {
         session: session.clone(),
         calib: None,
+        profile: None,
         dataset,
         markers: None,
         out: args.out.join("replay"),

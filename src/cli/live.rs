@@ -12,7 +12,9 @@ use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoF
 use helmcap::pipeline::{GroundTruth, PipelineConfig};
 
 use super::DatasetArgs;
-use super::replay::{Export, dense_stages, load_dataset_and_layout, print_summary, stop_flag};
+use super::replay::{
+    Export, dense_stages, load_dataset_and_layout, load_profile, print_summary, stop_flag,
+};
 
 /// Arguments of `helmcap live`.
 #[derive(Debug, clap::Args)]
@@ -27,6 +29,10 @@ pub struct LiveArgs {
     /// Serial port of the sync box, overriding the config's `[syncbox] port`.
     #[arg(long, value_name = "PORT")]
     pub sync_port: Option<String>,
+    /// Capture profile: dot size, polarity, colour, detection and labeling settings
+    /// (default: the built-in defaults).
+    #[arg(long, value_name = "TOML")]
+    pub profile: Option<PathBuf>,
     /// Dataset manifest, or `builtin[:SEED]` for the built-in actor.
     #[arg(long, short = 'd', default_value = "builtin")]
     pub dataset: String,
@@ -135,6 +141,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         no_cache: args.no_cache,
         cache_dir: args.cache_dir.clone(),
     };
+    // A bad profile is an error before anything slow starts.
+    let profile = load_profile(args.profile.as_deref())?;
     let (ds, layout, neutral_markers) =
         load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
     let ground_truth = match &args.test_source {
@@ -164,6 +172,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         .cloned()
         .context("the live config names no calibration (`calibration = ...`)")?;
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
+    config.detect = profile.detect_params(Some(&config.rig));
+    config.label = profile.label.clone();
     config.channel_capacity = args.queue;
     config.name = "live".into();
     config.timecode_rate = Some(source.timecode_rate());

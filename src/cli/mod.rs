@@ -7,6 +7,7 @@ mod bench_pipeline;
 mod calibrate;
 mod dataset;
 mod demo;
+mod detect;
 mod enhance;
 mod live;
 mod markers;
@@ -64,6 +65,9 @@ enum Command {
     Rig(rig::RigCommand),
     /// Render a synthetic helmet recording with ground truth, or calibration target images.
     Synth(synth::SynthArgs),
+    /// Marker detection (and labeling, with a calibration) on one image, a stereo pair or a
+    /// session frame -> annotated PNGs and a CSV.
+    Detect(detect::DetectArgs),
     /// Stereo calibration from image pairs of a target -> calibration YAML.
     Calibrate(calibrate::CalibrateArgs),
     /// Record the live cameras (and the sync box's timecode) to a session folder.
@@ -102,6 +106,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Detect(a) => detect::run(a),
         Command::Rig(c) => rig::run(c),
         Command::Register(a) => register::run(a),
         Command::Record(a) => record::run(a),

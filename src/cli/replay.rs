@@ -16,6 +16,7 @@ use helmcap::pipeline::{
 };
 use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
 use helmcap::solve::Solver;
+use helmcap::track::CaptureProfile;
 use nalgebra::Point3;
 
 use super::{DatasetArgs, builtin_params};
@@ -41,6 +42,10 @@ pub struct ReplayArgs {
     /// Calibration YAML (default: the one session.toml names).
     #[arg(long, value_name = "YAML")]
     pub calib: Option<PathBuf>,
+    /// Capture profile: dot size, polarity, colour, detection and labeling settings
+    /// (default: the one session.toml names, else the built-in defaults).
+    #[arg(long, value_name = "TOML")]
+    pub profile: Option<PathBuf>,
     /// Dataset manifest, or `builtin[:SEED]` for the built-in actor.
     #[arg(long, short = 'd', default_value = "builtin")]
     pub dataset: String,
@@ -224,7 +229,10 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     };
     let (ds, layout, neutral_markers) =
         load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
+    let profile = load_profile(args.profile.as_deref().or(info.profile.as_deref()))?;
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
+    config.detect = profile.detect_params(Some(&config.rig));
+    config.label = profile.label.clone();
     config.channel_capacity = args.queue;
     config.name = args
         .session
@@ -275,6 +283,17 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
             out.display()
         ))),
     }
+}
+
+/// The capture profile at `path`, or the built-in defaults.
+///
+/// # Errors
+/// An unreadable or invalid profile (the message names the file and key).
+pub fn load_profile(path: Option<&Path>) -> anyhow::Result<CaptureProfile> {
+    Ok(match path {
+        Some(p) => CaptureProfile::load(p)?,
+        None => CaptureProfile::default(),
+    })
 }
 
 /// Prints the end-of-take summary.

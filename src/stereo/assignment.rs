@@ -97,6 +97,77 @@ pub fn hungarian(cost: &[f64], rows: usize, cols: usize) -> Vec<Option<usize>> {
     out
 }
 
+/// Minimum-cost assignment on a sparse cost graph: `candidates[row]` lists the allowed
+/// `(column, cost)` pairs of each row (columns `0..cols`). The graph is split into its
+/// connected components (union-find) and [`hungarian`] runs on each, so that a few
+/// hundred rows and columns with a handful of candidates each cost little more than their
+/// candidates. Returns the assigned `(row, column)` pairs.
+pub fn assign_sparse(candidates: &[Vec<(usize, f64)>], cols: usize) -> Vec<(usize, usize)> {
+    let m = candidates.len();
+    let dets = cols;
+    // Union-find over rows 0..m and columns m..m+cols.
+    let mut parent: Vec<usize> = (0..m + dets).collect();
+    fn find(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    for (i, cands) in candidates.iter().enumerate() {
+        for &(a, _) in cands {
+            if a >= dets {
+                continue;
+            }
+            let (r1, r2) = (find(&mut parent, i), find(&mut parent, m + a));
+            if r1 != r2 {
+                parent[r1] = r2;
+            }
+        }
+    }
+    let mut groups: std::collections::HashMap<usize, (Vec<usize>, Vec<usize>)> =
+        std::collections::HashMap::new();
+    for (i, cands) in candidates.iter().enumerate() {
+        if cands.is_empty() {
+            continue;
+        }
+        let r = find(&mut parent, i);
+        groups.entry(r).or_default().0.push(i);
+    }
+    for a in 0..dets {
+        let r = find(&mut parent, m + a);
+        if let Some(g) = groups.get_mut(&r) {
+            g.1.push(a);
+        }
+    }
+    let mut out = Vec::new();
+    let mut keys: Vec<usize> = groups.keys().copied().collect();
+    keys.sort_unstable();
+    for key in keys {
+        let Some((rows, cols)) = groups.get(&key) else {
+            continue;
+        };
+        if rows.len() == 1 && cols.len() == 1 {
+            out.push((rows[0], cols[0]));
+            continue;
+        }
+        let mut cost = vec![f64::INFINITY; rows.len() * cols.len()];
+        for (r, &i) in rows.iter().enumerate() {
+            for &(a, e) in &candidates[i] {
+                if let Some(c) = cols.iter().position(|&x| x == a) {
+                    cost[r * cols.len() + c] = e;
+                }
+            }
+        }
+        for (r, c) in hungarian(&cost, rows.len(), cols.len()).iter().enumerate() {
+            if let Some(c) = c {
+                out.push((rows[r], cols[*c]));
+            }
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

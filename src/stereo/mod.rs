@@ -6,7 +6,7 @@
 pub mod assignment;
 pub mod triangulate;
 
-pub use assignment::hungarian;
+pub use assignment::{assign_sparse, hungarian};
 pub use triangulate::{Bundle, TriangulateParams, ray_midpoint, triangulate};
 
 use nalgebra::{Point2, Point3, Vector3};
@@ -25,7 +25,10 @@ pub enum StereoError {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PairParams {
-    /// Triangulation and its gates (the reprojection gate is the epipolar tolerance).
+    /// Triangulation and its gates (the reprojection gate is the epipolar tolerance). In a
+    /// settings file, keys this table leaves out keep the pairing defaults (depth range
+    /// 100 to 450 mm, gate 1 px), not those of [`TriangulateParams::default`].
+    #[serde(deserialize_with = "triangulate_over_pair_defaults")]
     pub triangulate: TriangulateParams,
     /// A pair is dropped as ambiguous when another candidate of its cam0 or cam1 detection
     /// costs less than this much more (pixels of RMS reprojection error). Default 0.5.
@@ -43,6 +46,23 @@ impl Default for PairParams {
             ambiguity_margin_px: 0.5,
         }
     }
+}
+
+/// Deserializes a `triangulate` table over [`PairParams::default`]'s: a file that sets one
+/// key keeps the pairing defaults of the others.
+fn triangulate_over_pair_defaults<'de, D>(d: D) -> Result<TriangulateParams, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    use serde::Deserialize as _;
+    use serde::de::Error as _;
+    let given = toml::Table::deserialize(d)?;
+    let mut merged =
+        toml::Table::try_from(PairParams::default().triangulate).map_err(D::Error::custom)?;
+    merged.extend(given);
+    toml::Value::Table(merged)
+        .try_into()
+        .map_err(D::Error::custom)
 }
 
 /// One paired and triangulated observation.
@@ -89,8 +109,11 @@ pub fn pair_detections(
     let f = rig.cam0.fx().min(rig.cam1.fx());
     let gate = params.triangulate.max_reprojection_px;
     let (zmin, zmax) = params.triangulate.depth_range_mm;
-    let mut cost = vec![f64::INFINITY; n0 * n1];
-    let mut bundles: Vec<Option<Bundle>> = vec![None; n0 * n1];
+    // Sparse candidate lists: a cam0 detection meets few cam1 rays within the gate, so a
+    // few hundred blobs per image (skin clutter) cost little more than their candidates.
+    let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n0];
+    let mut bundles: Vec<Vec<Bundle>> = vec![Vec::new(); n0];
+    let mut col_costs: Vec<Vec<f64>> = vec![Vec::new(); n1];
     for (i, r0) in rays0.iter().enumerate() {
         let Some(r0) = r0 else { continue };
         for (j, r1) in rays1.iter().enumerate() {
@@ -103,29 +126,35 @@ pub fn pair_detections(
                 continue;
             }
             if let Ok(b) = triangulate(rig, &pixels0[i], &pixels1[j], &params.triangulate) {
-                cost[i * n1 + j] = b.reprojection_px;
-                bundles[i * n1 + j] = Some(b);
+                rows[i].push((j, b.reprojection_px));
+                bundles[i].push(b);
+                col_costs[j].push(b.reprojection_px);
             }
         }
     }
-    let assignment = hungarian(&cost, n0, n1);
     let margin = params.ambiguity_margin_px;
     let mut out = Vec::new();
-    for (i, a) in assignment.iter().enumerate() {
-        let Some(j) = *a else { continue };
-        let c = cost[i * n1 + j];
-        let row_rival = (0..n1).any(|k| k != j && cost[i * n1 + k] < c + margin);
-        let col_rival = (0..n0).any(|k| k != i && cost[k * n1 + j] < c + margin);
+    for (i, j) in assign_sparse(&rows, n1) {
+        let Some(k) = rows[i].iter().position(|&(jj, _)| jj == j) else {
+            continue;
+        };
+        let c = rows[i][k].1;
+        // A rival: another candidate of the same row, or of the same column, that costs
+        // less than `margin` more (the pair's own cost appears once in each list).
+        let row_rival = rows[i]
+            .iter()
+            .enumerate()
+            .any(|(kk, &(_, ck))| kk != k && ck < c + margin);
+        let own = usize::from(c < c + margin);
+        let col_rival = col_costs[j].iter().filter(|&&ck| ck < c + margin).count() > own;
         if row_rival || col_rival {
             continue;
         }
-        if let Some(bundle) = bundles[i * n1 + j] {
-            out.push(StereoMatch {
-                index0: i,
-                index1: j,
-                bundle,
-            });
-        }
+        out.push(StereoMatch {
+            index0: i,
+            index1: j,
+            bundle: bundles[i][k],
+        });
     }
     out
 }

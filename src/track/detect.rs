@@ -95,6 +95,46 @@ impl Default for DetectParams {
 }
 
 impl DetectParams {
+    /// The settings with the size-dependent ones scaled to the dot size range: the fixed
+    /// pixel values of the fields are floors, raised for larger dots so that one set of
+    /// settings finds dots from [`DetectParams::min_dot_px`] to
+    /// [`DetectParams::max_dot_px`] across in the same image (the local-mean windows are
+    /// chosen by [`DetectParams::window_scales`]):
+    /// - the largest area to a disc of `1.25 × max_dot_px` (blur and the antialiased rim);
+    /// - the longest foreshortened dot to `1.25 × max_dot_px`;
+    /// - the smallest area to `0.15 × min_dot_px²` (a dot of the smallest size seen 75°
+    ///   from its normal), which drops pores and specks smaller than any dot.
+    pub fn scaled_to_dot_sizes(&self) -> DetectParams {
+        let max_dot = self.max_dot_px.clamp(1.0, 400.0);
+        let min_dot = self.min_dot_px.clamp(0.0, max_dot);
+        let max_area = (std::f64::consts::FRAC_PI_4 * (1.25 * max_dot).powi(2)).ceil() as usize;
+        let min_area = (0.15 * min_dot * min_dot).floor() as usize;
+        DetectParams {
+            min_area_px: self.min_area_px.max(min_area),
+            max_area_px: self.max_area_px.max(max_area).max(self.min_area_px.max(min_area)),
+            elongated_max_length_px: self.elongated_max_length_px.max(1.25 * max_dot),
+            ..self.clone()
+        }
+    }
+
+    /// The half-sizes of the local-mean windows, pixels, small first. A pixel is a
+    /// candidate when it is darker than the local mean of any of them (the scale space of
+    /// the detector, two levels): the small window
+    /// ([`DetectParams::window_radius_px`]) keeps small dots in dark surroundings (beside a
+    /// nostril, in the boom's shadow) separate from them; the large one, `0.55 ×
+    /// max_dot_px`, has a large dot cover at most ~60 % of it, so that the dot's centre
+    /// stays darker than its mean (the small window alone turns a large dot into a ring).
+    /// One window when the two would be within 1.5× of each other.
+    pub fn window_scales(&self) -> Vec<usize> {
+        let small = (self.window_radius_px as usize).clamp(1, 128);
+        let large = ((0.55 * self.max_dot_px.clamp(1.0, 400.0)).ceil() as usize).clamp(1, 128);
+        if large as f64 > 1.5 * small as f64 {
+            vec![small, large]
+        } else {
+            vec![small.max(large)]
+        }
+    }
+
     /// Checks every field.
     ///
     /// # Errors
@@ -126,6 +166,19 @@ impl DetectParams {
         {
             return Err("elongated_min_contrast_factor must be non-negative".into());
         }
+        if !(self.min_dot_px.is_finite() && self.min_dot_px >= 0.0) {
+            return Err(format!("min_dot_px = {} must be non-negative", self.min_dot_px));
+        }
+        if !(self.max_dot_px.is_finite()
+            && self.max_dot_px >= 1.0
+            && self.max_dot_px <= 400.0
+            && self.max_dot_px >= self.min_dot_px)
+        {
+            return Err(format!(
+                "max_dot_px = {} must be in [max(1, min_dot_px), 400]",
+                self.max_dot_px
+            ));
+        }
         if let Some((x0, y0, x1, y1)) = self.roi
             && (x0 >= x1 || y0 >= y1)
         {
@@ -148,6 +201,43 @@ pub struct Detection {
     pub contrast_dn: f64,
     /// Quality 0..1: roundness × contrast / (contrast + 40).
     pub quality: f64,
+    /// The blob's scale: the full major axis `4√λ_max` of its pixels' second moments,
+    /// pixels (a dot's diameter, about a pixel more for the antialiased rim, whatever its
+    /// foreshortening).
+    pub diameter_px: f64,
+}
+
+/// Why a blob of candidate pixels is not a dot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RejectReason {
+    /// Larger than the largest dot, and no dot inside it.
+    TooLarge,
+    /// Thinner than a dot seen edge-on (a crease, a hair, the mouth line).
+    NotRound,
+    /// Too faint against the background around it.
+    LowContrast,
+}
+
+impl RejectReason {
+    /// A short name for files and annotations.
+    pub fn name(self) -> &'static str {
+        match self {
+            RejectReason::TooLarge => "too_large",
+            RejectReason::NotRound => "not_round",
+            RejectReason::LowContrast => "low_contrast",
+        }
+    }
+}
+
+/// A blob that was not taken for a dot (see [`MarkerDetector::detect_with_rejects`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rejection {
+    /// Centre of its pixels, pixels.
+    pub centre_px: Point2<f64>,
+    /// Its area, pixels.
+    pub area_px: usize,
+    /// Why.
+    pub reason: RejectReason,
 }
 
 /// Finds the dots in `image` (see the module docs). Allocates its working buffers on
@@ -183,6 +273,27 @@ impl MarkerDetector {
 
     /// Finds the dots in `image` (see the module docs).
     pub fn detect(&mut self, image: &GrayImage, params: &DetectParams) -> Vec<Detection> {
+        self.detect_into(image, params, None)
+    }
+
+    /// [`MarkerDetector::detect`], and the blobs of candidate pixels that were not taken
+    /// for dots, with the reason (blobs smaller than the smallest dot are not listed).
+    pub fn detect_with_rejects(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+    ) -> (Vec<Detection>, Vec<Rejection>) {
+        let mut rejected = Vec::new();
+        let found = self.detect_into(image, params, Some(&mut rejected));
+        (found, rejected)
+    }
+
+    fn detect_into(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        mut rejected: Option<&mut Vec<Rejection>>,
+    ) -> Vec<Detection> {
         let (w, h) = (image.width as usize, image.height as usize);
         if w == 0 || h == 0 || image.data.len() != w * h {
             return Vec::new();
@@ -198,12 +309,63 @@ impl MarkerDetector {
         if x0 >= x1 || y0 >= y1 {
             return Vec::new();
         }
-        // The u16 column sums hold windows up to 257 rows.
-        let r = (params.window_radius_px as usize).min(128);
-        let (bw, bh) = (x1 - x0, y1 - y0);
-        self.threshold(image, params, r, (x0, y0, x1, y1));
-        // Connected components (8-connectivity) by flood fill.
+        let roi = (x0, y0, x1, y1);
+        let scales = params.window_scales();
+        let [small] = scales[..] else {
+            return self.detect_two_scales(image, params, &scales, roi, rejected);
+        };
+        let scaled = params.scaled_to_dot_sizes();
+        self.threshold(image, &scaled, small, roi);
         let mut out = Vec::new();
+        self.components(image, &scaled, roi, &mut out, rejected.as_deref_mut());
+        out
+    }
+
+    /// Detection at two window scales with per-blob scale selection: the small window
+    /// with the fixed-size filters (the detector for dots up to about `1.7 r` across),
+    /// the large window with the filters scaled to the dot size range. A blob of the large
+    /// scale wider than the small window handles ([`small_scale_limit_px`]) is kept, and the
+    /// small scale's detections inside it (the ring a small window makes of a large dot)
+    /// are dropped; the large scale's smaller blobs are the small scale's business (in
+    /// its wider window a small dot beside a crease or a nostril merges with them).
+    fn detect_two_scales(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        scales: &[usize],
+        roi: (usize, usize, usize, usize),
+        mut rejected: Option<&mut Vec<Rejection>>,
+    ) -> Vec<Detection> {
+        let (small, large) = (scales[0], scales[scales.len() - 1]);
+        let scaled = params.scaled_to_dot_sizes();
+        let mut fine = Vec::new();
+        self.threshold(image, params, small, roi);
+        self.components(image, params, roi, &mut fine, rejected.as_deref_mut());
+        let mut coarse = Vec::new();
+        self.threshold(image, &scaled, large, roi);
+        self.components(image, &scaled, roi, &mut coarse, None);
+        let limit = small_scale_limit_px(small);
+        coarse.retain(|d| d.diameter_px > limit);
+        fine.retain(|f| {
+            !coarse
+                .iter()
+                .any(|c| (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0)
+        });
+        fine.extend(coarse);
+        fine
+    }
+
+    /// Connected components (8-connectivity) of the candidate mask over the ROI, each
+    /// measured or split by [`split_and_measure`].
+    fn components(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        (x0, y0, x1, y1): (usize, usize, usize, usize),
+        out: &mut Vec<Detection>,
+        mut rejected: Option<&mut Vec<Rejection>>,
+    ) {
+        let (bw, bh) = (x1 - x0, y1 - y0);
         let c = params.min_contrast_dn;
         let Self {
             mask,
@@ -250,12 +412,19 @@ impl MarkerDetector {
                             }
                         }
                     }
-                    split_and_measure(image, pixels, c, 0, params, &mut out);
+                    split_and_measure(
+                        image,
+                        pixels,
+                        c,
+                        0,
+                        params,
+                        out,
+                        rejected.as_deref_mut(),
+                    );
                 }
                 chunk = chunk_end;
             }
         }
-        out
     }
 
     /// Fills `mask` (the ROI `(x0, y0, x1, y1)`, row-major) with the local contrast of
@@ -390,6 +559,13 @@ fn all_zero(bytes: &[u8]) -> bool {
     u64::from_ne_bytes(word) == 0 && bytes.len() <= 8
 }
 
+/// The widest blob the small window of half-size `r` measures well, pixels: a dot covering
+/// about 60 % of the `(2r + 1)²` window (beyond that its centre is no longer darker than the
+/// window's mean and the blob becomes a ring).
+pub fn small_scale_limit_px(r: usize) -> f64 {
+    0.87 * (2 * r + 1) as f64
+}
+
 /// Largest component kept whole for splitting, pixels.
 const MAX_COMPONENT_PX: usize = 20_000;
 
@@ -408,6 +584,7 @@ const SPLIT_MIN_AREA_FACTOR: usize = 2;
 /// round (a dot touching a dark shading band or crease), splits it by raising the contrast
 /// threshold (×1.6 per level, up to 4 levels) and measures the parts: dots inside
 /// uneven shading are found like MSER regions.
+#[allow(clippy::too_many_arguments)]
 fn split_and_measure(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
@@ -415,34 +592,80 @@ fn split_and_measure(
     depth: usize,
     params: &DetectParams,
     out: &mut Vec<Detection>,
+    mut rejected: Option<&mut Vec<Rejection>>,
 ) {
     if pixels.len() < params.min_area_px {
         return;
     }
+    let mut reason = RejectReason::TooLarge;
     if pixels.len() <= params.max_area_px {
         let found = if depth == 0 {
             measure_blob(image, pixels, params)
         } else {
             // Parts of a split component: only clearly round dots of some size (the
             // fragments of a crease are small and thin).
-            measure_blob(image, pixels, params).filter(|d| {
-                d.roundness >= SPLIT_MIN_ROUNDNESS
-                    && d.area_px >= SPLIT_MIN_AREA_FACTOR * params.min_area_px
-                    && d.contrast_dn >= SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn
+            measure_blob(image, pixels, params).and_then(|d| {
+                if d.roundness < SPLIT_MIN_ROUNDNESS
+                    || d.area_px < SPLIT_MIN_AREA_FACTOR * params.min_area_px
+                {
+                    Err(RejectReason::NotRound)
+                } else if d.contrast_dn < SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn
+                {
+                    Err(RejectReason::LowContrast)
+                } else {
+                    Ok(d)
+                }
             })
         };
-        if let Some(d) = found {
-            out.push(d);
-            return;
+        match found {
+            Ok(d) => {
+                out.push(d);
+                return;
+            }
+            Err(r) => reason = r,
         }
     }
-    if depth >= 4 {
-        return;
-    }
+    let found_before = out.len();
     let next = (threshold as f64 * 1.6).ceil() as u32 + 1;
-    if next > 255 {
-        return;
+    if depth < 4 && next <= 255 {
+        split_at(
+            image,
+            pixels,
+            next,
+            depth,
+            params,
+            out,
+            rejected.as_deref_mut(),
+        );
     }
+    // A blob none of whose parts is a dot is listed once, at the top of its splitting.
+    if depth == 0
+        && out.len() == found_before
+        && let Some(list) = rejected
+    {
+        let n = pixels.len() as f64;
+        let (sx, sy) = pixels
+            .iter()
+            .fold((0.0, 0.0), |(a, b), &(x, y, _)| (a + x as f64, b + y as f64));
+        list.push(Rejection {
+            centre_px: Point2::new(sx / n, sy / n),
+            area_px: pixels.len(),
+            reason,
+        });
+    }
+}
+
+/// The parts of a component above the raised contrast threshold `next`, each measured (or
+/// split further) by [`split_and_measure`].
+fn split_at(
+    image: &GrayImage,
+    pixels: &[(usize, usize, u8)],
+    next: u32,
+    depth: usize,
+    params: &DetectParams,
+    out: &mut Vec<Detection>,
+    mut rejected: Option<&mut Vec<Rejection>>,
+) {
     let kept: Vec<(usize, usize, u8)> = pixels
         .iter()
         .copied()
@@ -490,16 +713,24 @@ fn split_and_measure(
                 }
             }
         }
-        split_and_measure(image, &part, next, depth + 1, params, out);
+        split_and_measure(
+            image,
+            &part,
+            next,
+            depth + 1,
+            params,
+            out,
+            rejected.as_deref_mut(),
+        );
     }
 }
 
-/// Filters and measures one blob; `None` when it fails a filter.
+/// Filters and measures one blob; the reason when it fails a filter.
 fn measure_blob(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
     params: &DetectParams,
-) -> Option<Detection> {
+) -> Result<Detection, RejectReason> {
     let (w, h) = (image.width as usize, image.height as usize);
     let n = pixels.len() as f64;
     let (mut mx, mut my) = (0.0, 0.0);
@@ -534,7 +765,7 @@ fn measure_blob(
             && 4.0 * l1.sqrt() <= params.elongated_max_length_px
             && 4.0 * l2.max(0.0).sqrt() >= params.elongated_min_width_px)
     {
-        return None;
+        return Err(RejectReason::NotRound);
     }
     let (bx0, by0, bx1, by1) = pixels.iter().fold(
         (usize::MAX, usize::MAX, 0, 0),
@@ -553,7 +784,7 @@ fn measure_blob(
         }
     }
     if ring.is_empty() {
-        return None;
+        return Err(RejectReason::LowContrast);
     }
     let mid = ring.len() / 2;
     let background = f64::from(*ring.select_nth_unstable(mid).1);
@@ -565,7 +796,7 @@ fn measure_blob(
     if peak < params.min_peak_contrast_dn
         || (elongated && peak < params.elongated_min_contrast_factor * params.min_peak_contrast_dn)
     {
-        return None;
+        return Err(RejectReason::LowContrast);
     }
     // Weighted centroid over the box grown by 2.
     let (cx0, cy0) = (bx0.saturating_sub(2), by0.saturating_sub(2));
@@ -584,15 +815,16 @@ fn measure_blob(
         }
     }
     if sw <= 0.0 {
-        return None;
+        return Err(RejectReason::LowContrast);
     }
     let quality = roundness * (peak / (peak + 40.0));
-    Some(Detection {
+    Ok(Detection {
         centre_px: Point2::new(swx / sw, swy / sw),
         area_px: pixels.len(),
         roundness,
         contrast_dn: peak,
         quality: quality.clamp(0.0, 1.0),
+        diameter_px: 4.0 * l1.sqrt(),
     })
 }
 

@@ -9,7 +9,9 @@ pub mod gate;
 pub mod label;
 pub mod profile;
 
-pub use detect::{DetectParams, Detection, MarkerDetector, detect_markers};
+pub use detect::{
+    DetectParams, Detection, MarkerDetector, RejectReason, Rejection, detect_markers,
+};
 pub use gate::{EpipolarGate, EpipolarGateParams};
 pub use label::{LabelError, LabelParams, LabelStats, LabeledFrame, LabeledMarker, Labeler};
 pub use profile::{CaptureProfile, Polarity, ProfileError};

@@ -1,0 +1,311 @@
+//! `helmcap detect`: marker detection (and, with a calibration, labeling) on one image, a
+//! stereo pair, or one frame of a session, written as annotated PNGs and a CSV, so that an
+//! operator can check a rig on set in seconds.
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use helmcap::capture::{GrayImage, Replay, ReplayParams, StereoFrame};
+use helmcap::track::{
+    CaptureProfile, DetectParams, Detection, LabeledFrame, Labeler, MarkerDetector, Rejection,
+};
+use opencv::core::{Mat, Point, Scalar};
+use opencv::prelude::*;
+
+use super::DatasetArgs;
+use super::replay::load_dataset_and_layout;
+
+/// Arguments of `helmcap detect`.
+#[derive(Debug, clap::Args)]
+pub struct DetectArgs {
+    /// An image (PNG), or a session folder (then `--frame` picks the frame).
+    pub input: PathBuf,
+    /// The second camera's image of a stereo pair.
+    pub image1: Option<PathBuf>,
+    /// Frame of a session to look at.
+    #[arg(long, default_value_t = 0)]
+    pub frame: usize,
+    /// Capture profile (TOML; default: the session's, else the built-in defaults).
+    #[arg(long, value_name = "TOML")]
+    pub profile: Option<PathBuf>,
+    /// Calibration YAML (default: the session's); with a pair it enables labeling.
+    #[arg(long, value_name = "YAML")]
+    pub calib: Option<PathBuf>,
+    /// Dataset manifest, or `builtin[:SEED]`: the neutral face the layout sits on.
+    #[arg(long, short = 'd', default_value = "builtin")]
+    pub dataset: String,
+    /// Marker layout CSV (default for the built-in actor: its shipped layout).
+    #[arg(long, short = 'k', value_name = "CSV")]
+    pub markers: Option<PathBuf>,
+    /// Output folder: `detect_cam0.png` (and `detect_cam1.png`), `detections.csv`.
+    #[arg(long, short, default_value = "out/detect")]
+    pub out: PathBuf,
+}
+
+/// What was found in one image.
+struct CameraResult {
+    image: GrayImage,
+    dots: Vec<Detection>,
+    rejected: Vec<Rejection>,
+}
+
+pub fn run(args: DetectArgs) -> anyhow::Result<()> {
+    let (images, session_rig, session_profile) = load_input(&args)?;
+    let profile = match args.profile.as_ref().or(session_profile.as_ref()) {
+        Some(p) => CaptureProfile::load(p)?,
+        None => CaptureProfile::default(),
+    };
+    let rig = match &args.calib {
+        Some(p) => Some(helmcap::camera::read_rig(p)?),
+        None => session_rig,
+    };
+    let params: DetectParams = profile.detect_params(rig.as_ref());
+    params
+        .validate()
+        .map_err(|e| anyhow::anyhow!("detection settings: {e}"))?;
+    let mut detector = MarkerDetector::new();
+    let results: Vec<CameraResult> = images
+        .into_iter()
+        .map(|image| {
+            let (dots, rejected) = detector.detect_with_rejects(&image, &params);
+            CameraResult {
+                image,
+                dots,
+                rejected,
+            }
+        })
+        .collect();
+    // Labeling: a stereo pair with a calibration.
+    let mut names: Vec<String> = Vec::new();
+    let labels: Option<LabeledFrame> = match (&rig, results.len()) {
+        (Some(rig), 2) => {
+            let (_, layout, neutral) = load_dataset_and_layout(
+                &DatasetArgs {
+                    dataset: args.dataset.clone(),
+                    no_cache: false,
+                    cache_dir: None,
+                },
+                args.markers.as_deref(),
+            )?;
+            names = layout.markers.iter().map(|m| m.name.clone()).collect();
+            let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label.clone())?;
+            Some(labeler.process(0, [&results[0].dots, &results[1].dots]))
+        }
+        _ => None,
+    };
+    // Per camera and detection: the marker it was labeled as.
+    let mut label_of: Vec<Vec<Option<&str>>> =
+        results.iter().map(|r| vec![None; r.dots.len()]).collect();
+    if let Some(l) = &labels {
+        for (k, m) in l.markers.iter().enumerate() {
+            if let Some(m) = m {
+                for c in 0..2 {
+                    if let Some(slot) = label_of[c].get_mut(m.detections[c]) {
+                        *slot = Some(names[k].as_str());
+                    }
+                }
+            }
+        }
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    for (c, r) in results.iter().enumerate() {
+        let path = args.out.join(format!("detect_cam{c}.png"));
+        let rgb = annotate(r, &label_of[c]).context("drawing the annotations")?;
+        write_rgb_png(&path, r.image.width, r.image.height, &rgb)?;
+    }
+    let csv_path = args.out.join("detections.csv");
+    helmcap::atomic_file::write_atomically(&csv_path, |w| {
+        writeln!(
+            w,
+            "camera,u,v,diameter_px,area_px,roundness,contrast_dn,quality,status,marker"
+        )?;
+        for (c, r) in results.iter().enumerate() {
+            for (d, label) in r.dots.iter().zip(&label_of[c]) {
+                writeln!(
+                    w,
+                    "cam{c},{:.3},{:.3},{:.2},{},{:.3},{:.1},{:.3},dot,{}",
+                    d.centre_px.x,
+                    d.centre_px.y,
+                    d.diameter_px,
+                    d.area_px,
+                    d.roundness,
+                    d.contrast_dn,
+                    d.quality,
+                    label.unwrap_or("")
+                )?;
+            }
+            for x in &r.rejected {
+                writeln!(
+                    w,
+                    "cam{c},{:.3},{:.3},,{},,,,{},",
+                    x.centre_px.x,
+                    x.centre_px.y,
+                    x.area_px,
+                    x.reason.name()
+                )?;
+            }
+        }
+        Ok(())
+    })
+    .with_context(|| format!("writing {}", csv_path.display()))?;
+    for (c, r) in results.iter().enumerate() {
+        let (lo, hi) = r
+            .dots
+            .iter()
+            .map(|d| d.diameter_px)
+            .fold((f64::MAX, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+        let labeled = label_of[c].iter().filter(|l| l.is_some()).count();
+        println!(
+            "cam{c}: {} dots{}, {} blobs rejected{}",
+            r.dots.len(),
+            if r.dots.is_empty() {
+                String::new()
+            } else {
+                format!(" ({lo:.1} to {hi:.1} px across)")
+            },
+            r.rejected.len(),
+            if labels.is_some() {
+                format!(", {labeled} labeled")
+            } else {
+                String::new()
+            }
+        );
+    }
+    if results.len() == 2 && labels.is_none() {
+        println!("no labels: give --calib (or a session with a calibration) to label the pair");
+    }
+    println!(
+        "wrote {} and {}",
+        args.out.join("detect_cam0.png").display(),
+        csv_path.display()
+    );
+    Ok(())
+}
+
+/// The images to look at, the session's rig and profile when the input is a session.
+#[allow(clippy::type_complexity)]
+fn load_input(
+    args: &DetectArgs,
+) -> anyhow::Result<(
+    Vec<GrayImage>,
+    Option<helmcap::camera::StereoRig>,
+    Option<PathBuf>,
+)> {
+    if args.input.is_dir() {
+        if args.image1.is_some() {
+            bail!("give either a session folder or one or two images, not both");
+        }
+        let mut replay = Replay::open(&args.input, ReplayParams::default())
+            .with_context(|| format!("opening session {}", args.input.display()))?;
+        let rig = replay.rig().cloned();
+        let profile = replay.info().profile.clone();
+        if replay.select_frames(args.frame..=args.frame) == 0 {
+            bail!(
+                "{}: the session has no frame {}",
+                args.input.display(),
+                args.frame
+            );
+        }
+        let frame: StereoFrame = replay
+            .next_frame()
+            .with_context(|| format!("{}: no frame {}", args.input.display(), args.frame))??;
+        let [a, b] = frame.images;
+        return Ok((vec![a, b], rig, profile));
+    }
+    let mut images = vec![read_image(&args.input)?];
+    if let Some(p) = &args.image1 {
+        images.push(read_image(p)?);
+    }
+    Ok((images, None, None))
+}
+
+fn read_image(path: &Path) -> anyhow::Result<GrayImage> {
+    helmcap::capture::read_png_gray(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
+/// The image in colour with the dots (green circles of their diameter; labeled ones yellow
+/// with the marker's name) and the rejected blobs (red crosses).
+fn annotate(r: &CameraResult, labels: &[Option<&str>]) -> opencv::Result<Vec<u8>> {
+    let (w, h) = (r.image.width as i32, r.image.height as i32);
+    let mut mat = Mat::new_rows_cols_with_default(h, w, opencv::core::CV_8UC3, Scalar::all(0.0))?;
+    for (dst, &v) in mat.data_bytes_mut()?.chunks_exact_mut(3).zip(&r.image.data) {
+        dst.fill(v);
+    }
+    // Colours are BGR.
+    let green = Scalar::new(60.0, 220.0, 60.0, 0.0);
+    let yellow = Scalar::new(0.0, 230.0, 255.0, 0.0);
+    let red = Scalar::new(40.0, 40.0, 255.0, 0.0);
+    let scale = (f64::from(w.max(h)) / 1280.0).max(0.4);
+    let thickness = (scale.round() as i32).max(1);
+    let at = |x: f64, y: f64| Point::new(x.round() as i32, y.round() as i32);
+    for x in &r.rejected {
+        let p = at(x.centre_px.x, x.centre_px.y);
+        let s = 3;
+        opencv::imgproc::line(
+            &mut mat,
+            Point::new(p.x - s, p.y - s),
+            Point::new(p.x + s, p.y + s),
+            red,
+            1,
+            opencv::imgproc::LINE_8,
+            0,
+        )?;
+        opencv::imgproc::line(
+            &mut mat,
+            Point::new(p.x - s, p.y + s),
+            Point::new(p.x + s, p.y - s),
+            red,
+            1,
+            opencv::imgproc::LINE_8,
+            0,
+        )?;
+    }
+    for (d, label) in r.dots.iter().zip(labels) {
+        let p = at(d.centre_px.x, d.centre_px.y);
+        let radius = ((d.diameter_px / 2.0).round() as i32 + 2).max(3);
+        let colour = if label.is_some() { yellow } else { green };
+        opencv::imgproc::circle(
+            &mut mat,
+            p,
+            radius,
+            colour,
+            thickness,
+            opencv::imgproc::LINE_AA,
+            0,
+        )?;
+        if let Some(name) = label {
+            opencv::imgproc::put_text(
+                &mut mat,
+                name,
+                Point::new(p.x + radius + 2, p.y - radius),
+                opencv::imgproc::FONT_HERSHEY_SIMPLEX,
+                0.35 * scale,
+                yellow,
+                1,
+                opencv::imgproc::LINE_AA,
+                false,
+            )?;
+        }
+    }
+    // BGR to RGB.
+    Ok(mat
+        .data_bytes()?
+        .chunks_exact(3)
+        .flat_map(|p| [p[2], p[1], p[0]])
+        .collect())
+}
+
+fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> anyhow::Result<()> {
+    helmcap::atomic_file::write_atomically(path, |w| {
+        let mut enc = png::Encoder::new(w, width, height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = enc.write_header().map_err(std::io::Error::other)?;
+        writer.write_image_data(rgb).map_err(std::io::Error::other)?;
+        writer.finish().map_err(std::io::Error::other)
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}

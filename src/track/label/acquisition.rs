@@ -1,0 +1,336 @@
+//! Acquisition: labeling a frame with no tracks, by registering the unlabeled triangulated
+//! points to the layout's neutral positions (module docs of [`super`], "Acquisition").
+
+use kiddo::SquaredEuclidean;
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+use super::{LabelStats, Labeler, PassResult};
+use crate::align::horn_alignment;
+use crate::stereo::pair_detections;
+
+impl Labeler {
+    /// Acquisition by registration (module docs). Returns the pose and the labels of a
+    /// tracking pass under it, or None when the registration is ambiguous or too weak (or,
+    /// on skin with much clutter, not decided yet: the search goes on next frame).
+    pub(super) fn acquire(
+        &mut self,
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        stats: &mut LabelStats,
+    ) -> Option<(Isometry3<f64>, PassResult)> {
+        // Pair only finite detections, at most the best few hundred by quality per image,
+        // remembering their original indices.
+        let max = self.params.acquire_max_detections;
+        let chosen: [Vec<usize>; 2] = [0, 1].map(|c| {
+            let mut idx: Vec<usize> = (0..pixels[c].len())
+                .filter(|&a| pixels[c][a].is_some())
+                .collect();
+            if idx.len() > max {
+                let quality = |a: usize| self.blobs[c].get(a).map_or(0.0, |b| b.1);
+                idx.sort_by(|&a, &b| quality(b).total_cmp(&quality(a)).then(a.cmp(&b)));
+                idx.truncate(max);
+                idx.sort_unstable();
+            }
+            idx
+        });
+        let px: [Vec<Point2<f64>>; 2] = [0, 1].map(|c| {
+            chosen[c]
+                .iter()
+                .filter_map(|&a| pixels[c][a])
+                .collect::<Vec<_>>()
+        });
+        let matches = pair_detections(&self.rig, &px[0], &px[1], &self.params.pair);
+        // Pairs of blobs that are not the size of a dot at their depth are skin, not ink.
+        let points: Vec<Point3<f64>> = matches
+            .iter()
+            .filter(|s| {
+                self.dot_sized(
+                    &s.bundle.point_in_cam0,
+                    [chosen[0][s.index0], chosen[1][s.index1]],
+                )
+            })
+            .map(|s| s.bundle.point_in_cam0)
+            .collect();
+        stats.paired = points.len();
+        let p = &self.params;
+        if points.len() < p.acquire_min_markers {
+            self.acquisition = Search::default();
+            return None;
+        }
+        let pose = self.register(&points)?;
+        let p = &self.params;
+        // Label with the tracking pass around the registered neutral.
+        let preds = self.predictions(&pose, 1, 0.0);
+        let pass = self.label_pass(&preds, pixels);
+        let (pose, rms) = self.estimate_pose(&pass.labels)?;
+        if rms > p.max_pose_rms_mm || pass.labels.len() < p.acquire_min_markers {
+            return None;
+        }
+        // Second pass under the refined pose.
+        let preds = self.predictions(&pose, 1, 0.0);
+        let pass = self.label_pass(&preds, pixels);
+        if pass.labels.len() < p.acquire_min_markers {
+            return None;
+        }
+        Some((pose, pass))
+    }
+
+    /// RANSAC registration of unlabeled triangulated points to the neutral markers:
+    /// returns `cam0_from_head`, or None when no hypothesis is both strong and unambiguous
+    /// yet. At most [`super::LabelParams::acquire_iterations_per_frame`] triples are drawn
+    /// per call; the best hypotheses carry over to the next frame's points (the head moves
+    /// little in a frame, and ICP takes up the motion) until
+    /// [`super::LabelParams::acquire_iterations`] were drawn, and the search starts over.
+    pub(super) fn register(&mut self, points: &[Point3<f64>]) -> Option<Isometry3<f64>> {
+        let mut search = std::mem::take(&mut self.acquisition);
+        let p = &self.params;
+        let m = self.neutral.len();
+        let n = points.len();
+        let grid = PointGrid::new(points, p.acquire_gate_mm);
+        let tol = |d: f64| p.acquire_distance_tolerance_mm + p.acquire_distance_tolerance_rel * d;
+        let mut rng =
+            StdRng::seed_from_u64(0x6c61_6265_6c00 ^ n as u64 ^ ((search.iterations as u64) << 32));
+        // Hypotheses of earlier frames, moved onto this frame's points.
+        let mut top: Vec<(f64, Isometry3<f64>)> = Vec::new();
+        for (_, t) in std::mem::take(&mut search.top) {
+            let t = self.icp(t, &grid);
+            let score = self.score(&t, &grid);
+            self.keep_top(&mut top, score, t);
+        }
+        let (z0, z1) = p.pair.triangulate.depth_range_mm;
+        let spread = p.acquire_min_spread_mm;
+        let strong = 0.7 * n.min(m) as f64;
+        let first = search.iterations;
+        let last = (first + p.acquire_iterations_per_frame).min(p.acquire_iterations);
+        for iteration in first..last {
+            search.iterations = iteration + 1;
+            // Enough evidence: a strong hypothesis and a good number of samples after it.
+            if iteration >= 60 && top.first().is_some_and(|x| x.0 >= strong) {
+                break;
+            }
+            // A well-spread triple of observed points.
+            let mut triple = None;
+            for _ in 0..30 {
+                let a = rng.random_range(0..n);
+                let b = rng.random_range(0..n);
+                let c = rng.random_range(0..n);
+                if a == b || b == c || a == c {
+                    continue;
+                }
+                let (dab, dac, dbc) = (
+                    (points[a] - points[b]).norm(),
+                    (points[a] - points[c]).norm(),
+                    (points[b] - points[c]).norm(),
+                );
+                if dab >= spread && dac >= spread && dbc >= spread {
+                    triple = Some((a, b, c, dab, dac, dbc));
+                    break;
+                }
+            }
+            let Some((a, b, c, dab, dac, dbc)) = triple else {
+                continue;
+            };
+            let lo = self.pair_table.partition_point(|e| e.0 < dab - tol(dab));
+            let hi = self.pair_table.partition_point(|e| e.0 <= dab + tol(dab));
+            let (tac, tbc) = (tol(dac), tol(dbc));
+            for &(_, i, j) in &self.pair_table[lo..hi] {
+                let (i, j) = (i as usize, j as usize);
+                for k in 0..m {
+                    if k == i
+                        || k == j
+                        || (self.distances[i * m + k] - dac).abs() > tac
+                        || (self.distances[j * m + k] - dbc).abs() > tbc
+                    {
+                        continue;
+                    }
+                    let Ok(t) = horn_alignment(
+                        &[self.neutral[i], self.neutral[j], self.neutral[k]],
+                        &[points[a], points[b], points[c]],
+                        &[],
+                    ) else {
+                        continue;
+                    };
+                    // Prior: the face is in front of the cameras.
+                    let centre = t * self.centroid();
+                    if !(z0..=z1).contains(&centre.z) {
+                        continue;
+                    }
+                    let score = self.score(&t, &grid);
+                    self.keep_top(&mut top, score, t);
+                }
+            }
+        }
+        // Refine the leading distinct hypotheses by ICP, then compare.
+        let mut refined: Vec<(f64, usize, Isometry3<f64>)> = top
+            .iter()
+            .take(4)
+            .map(|&(_, t)| {
+                let t = self.icp(t, &grid);
+                let (score, inliers) = self.score_with_inliers(&t, &grid);
+                (score, inliers, t)
+            })
+            .collect();
+        refined.sort_by(|x, y| y.0.total_cmp(&x.0));
+        let Some(&(best_score, inliers, best)) = refined.first() else {
+            if search.iterations < p.acquire_iterations {
+                self.acquisition = search;
+            }
+            return None;
+        };
+        let rival = refined
+            .iter()
+            .skip(1)
+            .filter(|(_, _, t)| !self.same_hypothesis(t, &best))
+            .map(|x| x.0)
+            .fold(0.0, f64::max);
+        // Of the points, at most one per marker can match: clutter on the skin does not
+        // count against a registration.
+        let needed = (p.acquire_min_inlier_fraction * n.min(m) as f64)
+            .ceil()
+            .max(p.acquire_min_markers as f64) as usize;
+        tracing::debug!(best_score, rival, inliers, n, "registration");
+        if inliers < needed || rival >= p.acquire_ambiguity_ratio * best_score {
+            if search.iterations < p.acquire_iterations {
+                // Not decided yet: go on next frame from these hypotheses.
+                search.top = top;
+                self.acquisition = search;
+            }
+            return None;
+        }
+        Some(best)
+    }
+
+    pub(super) fn centroid(&self) -> Point3<f64> {
+        let s = self
+            .neutral
+            .iter()
+            .fold(Vector3::zeros(), |a, q| a + q.coords);
+        Point3::from(s / self.neutral.len() as f64)
+    }
+
+    /// MSAC score: Σ over neutral markers of `1 − (d/gate)²` for the nearest observed
+    /// point within the gate.
+    /// Gives up early (returning the partial score) when fewer than a fifth of the first
+    /// 20 markers match: most hypotheses are wrong, and this keeps acquisition fast.
+    pub(super) fn score(&self, t: &Isometry3<f64>, grid: &PointGrid) -> f64 {
+        let g = self.params.acquire_gate_mm;
+        let mut score = 0.0;
+        let mut hits = 0;
+        for (k, &i) in self.score_order.iter().enumerate() {
+            if k == 20 && hits < 4 {
+                break;
+            }
+            if let Some((_, d)) = grid.nearest(&(t * self.neutral[i])) {
+                score += 1.0 - (d / g).powi(2);
+                hits += 1;
+            }
+        }
+        score
+    }
+
+    pub(super) fn score_with_inliers(&self, t: &Isometry3<f64>, grid: &PointGrid) -> (f64, usize) {
+        let g = self.params.acquire_gate_mm;
+        let mut score = 0.0;
+        let mut inliers = 0;
+        for q in &self.neutral {
+            if let Some((_, d)) = grid.nearest(&(t * q)) {
+                score += 1.0 - (d / g).powi(2);
+                inliers += 1;
+            }
+        }
+        (score, inliers)
+    }
+
+    /// Keeps up to 6 distinct hypotheses with the highest scores.
+    pub(super) fn keep_top(&self, top: &mut Vec<(f64, Isometry3<f64>)>, score: f64, t: Isometry3<f64>) {
+        if top.len() >= 6 && top.last().is_some_and(|x| x.0 >= score) {
+            return;
+        }
+        if let Some(k) = top.iter().position(|(_, u)| self.same_hypothesis(u, &t)) {
+            if top[k].0 >= score {
+                return;
+            }
+            top.remove(k);
+        }
+        let at = top.partition_point(|x| x.0 >= score);
+        top.insert(at, (score, t));
+        top.truncate(6);
+    }
+
+    /// Two poses label the same way when no neutral marker moves by more than the gate.
+    pub(super) fn same_hypothesis(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+        let g = self.params.acquire_gate_mm;
+        self.neutral.iter().all(|q| (a * q - b * q).norm() < g)
+    }
+
+    /// Iterated closest points: mutual nearest neighbours within the gate, Horn.
+    pub(super) fn icp(&self, mut t: Isometry3<f64>, grid: &PointGrid) -> Isometry3<f64> {
+        for _ in 0..6 {
+            let mut src = Vec::new();
+            let mut dst = Vec::new();
+            for q in &self.neutral {
+                if let Some((k, _)) = grid.nearest(&(t * q)) {
+                    src.push(*q);
+                    dst.push(grid.points[k]);
+                }
+            }
+            if src.len() < 3 {
+                break;
+            }
+            match horn_alignment(&src, &dst, &[]) {
+                Ok(u) => t = u,
+                Err(_) => break,
+            }
+        }
+        t
+    }
+}
+
+/// An acquisition search under way over several frames: the best hypotheses so far and
+/// the number of triples drawn.
+#[derive(Debug, Clone, Default)]
+pub(super) struct Search {
+    top: Vec<(f64, Isometry3<f64>)>,
+    iterations: usize,
+}
+
+/// Nearest-neighbour queries within a radius over the triangulated points (a k-d tree).
+pub(super) struct PointGrid {
+    points: Vec<Point3<f64>>,
+    radius_sq: f64,
+    tree: Option<ImmutableKdTree<f64, u64, 3, 32>>,
+}
+
+impl PointGrid {
+    /// Indexes `points` (non-finite ones are never found) for queries within `radius`.
+    pub(super) fn new(points: &[Point3<f64>], radius: f64) -> Self {
+        let coords: Vec<[f64; 3]> = points
+            .iter()
+            .map(|p| {
+                if p.coords.iter().all(|v| v.is_finite()) {
+                    [p.x, p.y, p.z]
+                } else {
+                    // Far outside any query: never within the radius.
+                    [f64::MAX / 4.0; 3]
+                }
+            })
+            .collect();
+        Self {
+            points: points.to_vec(),
+            radius_sq: radius * radius,
+            tree: (!coords.is_empty()).then(|| ImmutableKdTree::new_from_slice(&coords)),
+        }
+    }
+
+    /// Index and distance of the nearest point within the radius.
+    pub(super) fn nearest(&self, q: &Point3<f64>) -> Option<(usize, f64)> {
+        let tree = self.tree.as_ref()?;
+        if !q.coords.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let nn = tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
+        (nn.distance < self.radius_sq).then(|| (nn.item as usize, nn.distance.sqrt()))
+    }
+}

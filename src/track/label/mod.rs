@@ -1,0 +1,716 @@
+//! Marker tracking and labeling: which painted dot is which layout marker, frame after
+//! frame, from the two cameras' unlabeled detections.
+//!
+//! # Acquisition
+//! While no head pose is known, the detections are paired under the epipolar constraint
+//! ([`crate::stereo::pair_detections`], ambiguous pairs dropped) and triangulated; the unlabeled 3D points
+//! are registered to the layout's neutral positions with no prior beyond "the face is in
+//! front of the cameras". RANSAC over point triples with distance-invariant matching:
+//! three well-spread triangulated points give three distances, and every triple of
+//! neutral markers with the same three pairwise distances (within a tolerance) is a
+//! hypothesis, solved by Horn's closed form ([`crate::align::horn_alignment`]) and scored by the
+//! truncated quadratic (MSAC) count of neutral markers landing on a triangulated point.
+//! The best hypothesis is refined by iterated closest points and accepted only when it is
+//! unambiguous (no distinct hypothesis scores close to it) and most points match within a
+//! tight gate.
+//!
+//! # Tracking
+//! Each marker keeps its position in the head frame `hᵢ` (the neutral position until seen,
+//! then its last triangulated position carried back by the head pose) and its velocity in
+//! the head frame. Per frame:
+//! 1. The rigid head pose is predicted at constant velocity and every marker is predicted
+//!    at `T·(hᵢ + vᵢ)` and projected into both cameras.
+//! 2. Per camera, markers are assigned to detections within a gate around their
+//!    prediction by the Hungarian method ([`crate::stereo::hungarian`], per connected component of the
+//!    gated bipartite graph). An assignment with a rival (another detection near the
+//!    prediction, or another prediction near the detection) is in doubt.
+//! 3. Left/right pairing under the epipolar constraint: a marker's two detections must
+//!    triangulate within the epipolar gate ([`super::gate`]: `k` robust standard
+//!    deviations of the residuals of confidently labeled markers, at least
+//!    [`LabelParams::max_reprojection_px`]) and land near the 3D
+//!    prediction. A marker in doubt in one camera is kept only when exactly one of its
+//!    candidate pairs passes both tests; otherwise it is dropped for the frame (a wrong
+//!    label is worse than a missing one).
+//! 4. The head pose of the frame is estimated by weighted Horn (stabilizing weights of
+//!    the layout, with outlier rejection) from these labels, all markers are predicted
+//!    again with it, and steps 2-3 run a second time with the tight gate: this absorbs
+//!    fast head motion that the constant-velocity prediction misses.
+//!
+//! Markers that come back after an occlusion are re-identified at their last seen
+//! head-frame position carried by the current pose, with a gate that grows with the gap.
+//! Spurious blobs match no prediction, or fail the epipolar and 3D gates. When too few
+//! markers are labeled for a few frames, or the head pose does not fit the labels, the
+//! tracks are dropped and the next frame is acquired again.
+//!
+//! The work is split by job: [`tracking`] (prediction, gated assignment and stereo
+//! checks, head pose), [`acquisition`] (registration of unlabeled points to the layout)
+//! and [`assignment`] (optimal per-camera assignment).
+
+mod acquisition;
+mod assignment;
+mod tracking;
+
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+
+use super::Detection;
+use super::gate::{EpipolarGate, EpipolarGateParams};
+use crate::camera::StereoRig;
+use crate::dataset::MarkerLayout;
+use crate::stereo::{Bundle, PairParams};
+
+
+/// Labeling settings.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LabelParams {
+    /// Pairing and triangulation for acquisition (epipolar gate, depth range, ambiguity).
+    /// Default [`PairParams::default`].
+    pub pair: PairParams,
+    /// Acquisition: absolute tolerance when matching a distance between two triangulated
+    /// points with a distance between two neutral markers, mm. Default 1.5.
+    pub acquire_distance_tolerance_mm: f64,
+    /// Acquisition: tolerance relative to the distance, added to the absolute one.
+    /// Default 0.02.
+    pub acquire_distance_tolerance_rel: f64,
+    /// Acquisition: smallest distance between the points of a sampled triple, mm.
+    /// Default 25.
+    pub acquire_min_spread_mm: f64,
+    /// Acquisition: number of sampled triples. Default 300.
+    pub acquire_iterations: usize,
+    /// Acquisition: a neutral marker matches a triangulated point within this, mm.
+    /// Default 3.
+    pub acquire_gate_mm: f64,
+    /// Acquisition: smallest share of the triangulated points that must match a marker.
+    /// Default 0.6.
+    pub acquire_min_inlier_fraction: f64,
+    /// Acquisition: fewest matched markers. Default 8.
+    pub acquire_min_markers: usize,
+    /// Acquisition: the best distinct rival hypothesis must score below this share of the
+    /// best. Default 0.5.
+    pub acquire_ambiguity_ratio: f64,
+    /// Search radius around a marker's predicted pixel when it was labeled in the previous
+    /// frame, pixels. Default 6.
+    pub gate_px: f64,
+    /// Added to the search radius per frame of a gap (a marker coming back after an
+    /// occlusion), pixels. Default 1.
+    pub gate_growth_px_per_frame: f64,
+    /// Largest search radius for a marker coming back after a gap, pixels. Default 10.
+    pub max_gap_gate_px: f64,
+    /// Added to the search radius per pixel of predicted expression motion. Default 0.5.
+    pub velocity_gate_factor: f64,
+    /// Extra search radius of the first pass, which only estimates the head pose,
+    /// pixels. Default 10.
+    pub pose_pass_extra_gate_px: f64,
+    /// An assignment at distance `e` is in doubt when a rival lies within
+    /// `ambiguity_ratio · e + ambiguity_margin_px`. Default 2.
+    pub ambiguity_ratio: f64,
+    /// See [`LabelParams::ambiguity_ratio`], pixels. Default 2.
+    pub ambiguity_margin_px: f64,
+    /// Largest RMS reprojection error of a labeled marker's two detections (the epipolar
+    /// gate) before the centroid noise is measured, and its floor afterwards, pixels.
+    /// Default 0.6.
+    pub max_reprojection_px: f64,
+    /// Scaling of the epipolar gate with the measured centroid noise (its `floor_px` is
+    /// replaced by [`LabelParams::max_reprojection_px`]). Default
+    /// [`EpipolarGateParams::default`].
+    pub epipolar_gate: EpipolarGateParams,
+    /// The 3D gate around the prediction, as a multiple of the pixel gate's size at the
+    /// marker's depth. Default 1.5.
+    pub gate_3d_factor: f64,
+    /// Share of the last frame-to-frame expression motion carried into the prediction.
+    /// Default 0.8.
+    pub velocity_damping: f64,
+    /// Tracking is lost when fewer markers than this are labeled ... Default 6.
+    pub lost_min_markers: usize,
+    /// ... for this many frames in a row. Default 3.
+    pub lost_frames: usize,
+    /// A frame's labels are dropped when the stabilizing markers fit the rigid head pose
+    /// worse than this RMS, mm. Default 2.5.
+    pub max_pose_rms_mm: f64,
+    /// A jump of more than this many frames (or a frame number that does not increase)
+    /// drops the tracks. Default 5.
+    pub max_frame_gap: usize,
+    /// Margin added around the predicted markers for the detector's region of interest,
+    /// pixels. Default 40.
+    pub roi_margin_px: f64,
+    /// Painted dot diameter, mm (a capture profile sets it from its `dot_diameter_mm`).
+    /// Default 2.4.
+    pub dot_diameter_mm: f64,
+    /// A blob is consistent with a dot at its triangulated depth when its measured
+    /// diameter ([`Detection::diameter_px`]) lies within this range of ratios of the
+    /// expected `f · dot_diameter_mm / depth`, widened by 2 px either way (the antialiased
+    /// rim and blur). Blobs of another size (freckles, pores, moles of another size, the
+    /// pupils) are not taken for markers. Default 0.5 to 1.8.
+    pub dot_size_ratio: (f64, f64),
+    /// Acquisition: at most this many detections per image take part, the best by
+    /// quality (bounds the time of an attempt on skin with hundreds of blobs). Default
+    /// 400.
+    pub acquire_max_detections: usize,
+    /// Acquisition: sampled triples per frame; an acquisition that needs more samples goes
+    /// on over the next frames with the hypotheses found so far (the stream never waits for
+    /// it). Default 150.
+    pub acquire_iterations_per_frame: usize,
+}
+
+impl Default for LabelParams {
+    fn default() -> Self {
+        Self {
+            pair: PairParams::default(),
+            acquire_distance_tolerance_mm: 1.5,
+            acquire_distance_tolerance_rel: 0.02,
+            acquire_min_spread_mm: 25.0,
+            acquire_iterations: 300,
+            acquire_gate_mm: 3.0,
+            acquire_min_inlier_fraction: 0.6,
+            acquire_min_markers: 8,
+            acquire_ambiguity_ratio: 0.5,
+            gate_px: 6.0,
+            gate_growth_px_per_frame: 1.0,
+            max_gap_gate_px: 10.0,
+            velocity_gate_factor: 0.5,
+            pose_pass_extra_gate_px: 10.0,
+            ambiguity_ratio: 2.0,
+            ambiguity_margin_px: 2.0,
+            max_reprojection_px: 0.6,
+            epipolar_gate: EpipolarGateParams::default(),
+            gate_3d_factor: 1.5,
+            velocity_damping: 0.8,
+            lost_min_markers: 6,
+            lost_frames: 3,
+            max_pose_rms_mm: 2.5,
+            max_frame_gap: 5,
+            roi_margin_px: 40.0,
+            dot_diameter_mm: 2.4,
+            dot_size_ratio: (0.5, 1.8),
+            acquire_max_detections: 400,
+            acquire_iterations_per_frame: 150,
+        }
+    }
+}
+
+impl LabelParams {
+    /// Checks every field.
+    ///
+    /// # Errors
+    /// A message naming the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = |v: f64, name: &str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be positive and finite"))
+            }
+        };
+        let non_negative = |v: f64, name: &str| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be non-negative and finite"))
+            }
+        };
+        let tp = &self.pair.triangulate;
+        positive(
+            tp.max_reprojection_px,
+            "pair.triangulate.max_reprojection_px",
+        )?;
+        positive(tp.sigma_px, "pair.triangulate.sigma_px")?;
+        let (z0, z1) = tp.depth_range_mm;
+        if !(z0.is_finite() && z1.is_finite() && 0.0 < z0 && z0 < z1) {
+            return Err("pair.triangulate.depth_range_mm must be 0 < near < far".into());
+        }
+        non_negative(self.pair.ambiguity_margin_px, "pair.ambiguity_margin_px")?;
+        non_negative(
+            self.acquire_distance_tolerance_mm,
+            "acquire_distance_tolerance_mm",
+        )?;
+        non_negative(
+            self.acquire_distance_tolerance_rel,
+            "acquire_distance_tolerance_rel",
+        )?;
+        if self.acquire_distance_tolerance_mm + self.acquire_distance_tolerance_rel <= 0.0 {
+            return Err("acquire distance tolerances cannot both be 0".into());
+        }
+        non_negative(self.acquire_min_spread_mm, "acquire_min_spread_mm")?;
+        if self.acquire_iterations == 0 {
+            return Err("acquire_iterations must be at least 1".into());
+        }
+        positive(self.acquire_gate_mm, "acquire_gate_mm")?;
+        if !(0.0..=1.0).contains(&self.acquire_min_inlier_fraction) {
+            return Err("acquire_min_inlier_fraction must be in [0, 1]".into());
+        }
+        if self.acquire_min_markers < 3 {
+            return Err("acquire_min_markers must be at least 3".into());
+        }
+        if !(self.acquire_ambiguity_ratio > 0.0 && self.acquire_ambiguity_ratio <= 1.0) {
+            return Err("acquire_ambiguity_ratio must be in (0, 1]".into());
+        }
+        positive(self.gate_px, "gate_px")?;
+        non_negative(self.gate_growth_px_per_frame, "gate_growth_px_per_frame")?;
+        positive(self.max_gap_gate_px, "max_gap_gate_px")?;
+        non_negative(self.velocity_gate_factor, "velocity_gate_factor")?;
+        non_negative(self.pose_pass_extra_gate_px, "pose_pass_extra_gate_px")?;
+        if !(self.ambiguity_ratio.is_finite() && self.ambiguity_ratio >= 1.0) {
+            return Err("ambiguity_ratio must be at least 1".into());
+        }
+        non_negative(self.ambiguity_margin_px, "ambiguity_margin_px")?;
+        positive(self.max_reprojection_px, "max_reprojection_px")?;
+        EpipolarGateParams {
+            floor_px: self.max_reprojection_px,
+            ceiling_px: self.epipolar_gate.ceiling_px.max(self.max_reprojection_px),
+            ..self.epipolar_gate.clone()
+        }
+        .validate()?;
+        positive(self.gate_3d_factor, "gate_3d_factor")?;
+        if !(0.0..=1.0).contains(&self.velocity_damping) {
+            return Err("velocity_damping must be in [0, 1]".into());
+        }
+        if self.lost_min_markers < 3 {
+            return Err("lost_min_markers must be at least 3".into());
+        }
+        if self.lost_frames == 0 {
+            return Err("lost_frames must be at least 1".into());
+        }
+        positive(self.max_pose_rms_mm, "max_pose_rms_mm")?;
+        if self.max_frame_gap == 0 {
+            return Err("max_frame_gap must be at least 1".into());
+        }
+        non_negative(self.roi_margin_px, "roi_margin_px")?;
+        if !(self.dot_diameter_mm.is_finite() && self.dot_diameter_mm > 0.0) {
+            return Err("dot_diameter_mm must be positive".into());
+        }
+        let (lo, hi) = self.dot_size_ratio;
+        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
+            return Err("dot_size_ratio must be 0 <= low < high".into());
+        }
+        if self.acquire_max_detections < self.acquire_min_markers {
+            return Err("acquire_max_detections must be at least acquire_min_markers".into());
+        }
+        if self.acquire_iterations_per_frame == 0 {
+            return Err("acquire_iterations_per_frame must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// Why a [`Labeler`] cannot be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LabelError {
+    /// The layout or the neutral positions are unusable.
+    #[error("marker layout: {0}")]
+    Layout(String),
+    /// The stereo rig is invalid.
+    #[error("stereo rig: {0}")]
+    Rig(String),
+    /// A parameter is out of range.
+    #[error("label parameters: {0}")]
+    Params(String),
+}
+
+/// One labeled marker of a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabeledMarker {
+    /// The triangulated position (cam0 frame, mm) with reprojection error and confidence.
+    pub bundle: Bundle,
+    /// The detections used, cam0 and cam1, pixels.
+    pub pixels: [Point2<f64>; 2],
+    /// Their indices in the input slices.
+    pub detections: [usize; 2],
+    /// True on the first frame the marker is labeled again after a gap.
+    pub reacquired: bool,
+}
+
+/// Counts of one frame.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct LabelStats {
+    /// Detections given, cam0 and cam1.
+    pub detections: [usize; 2],
+    /// Stereo pairs formed: unambiguous epipolar pairs while acquiring, markers with a
+    /// candidate detection in both cameras while tracking.
+    pub paired: usize,
+    /// Markers labeled.
+    pub labeled: usize,
+    /// Markers labeled again after a gap.
+    pub reacquired: usize,
+    /// Markers with candidates that were dropped: in doubt, or failing the epipolar or
+    /// 3D gate (and all labels of a frame whose head pose does not fit).
+    pub rejected: usize,
+    /// True when the frame was (or failed to be) labeled by acquisition.
+    pub acquiring: bool,
+}
+
+/// The labels of one stereo frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabeledFrame {
+    /// One entry per layout marker, in layout order: None when not labeled this frame.
+    pub markers: Vec<Option<LabeledMarker>>,
+    /// Counts.
+    pub stats: LabelStats,
+}
+
+/// What the labeler remembers of one marker.
+#[derive(Debug, Clone, PartialEq)]
+struct Track {
+    /// Position in the head frame, mm (the neutral position until seen).
+    head: Point3<f64>,
+    /// Motion in the head frame over the last frame, mm per frame.
+    velocity: Vector3<f64>,
+    /// Frames since the marker was last labeled (0: labeled in the last frame); None
+    /// when never labeled since the last acquisition.
+    frames_since_seen: Option<usize>,
+}
+
+/// Tracks and labels markers frame by frame (see the module docs).
+#[derive(Debug, Clone)]
+pub struct Labeler {
+    rig: StereoRig,
+    neutral: Vec<Point3<f64>>,
+    stabilize: Vec<f64>,
+    params: LabelParams,
+    /// Neutral distance matrix, `m × m`.
+    distances: Vec<f64>,
+    /// Ordered neutral marker pairs `(distance, i, j)`, sorted by distance.
+    pair_table: Vec<(f64, u32, u32)>,
+    /// The markers in a fixed shuffled order (hypothesis scoring looks at a spread-out
+    /// subset first).
+    score_order: Vec<usize>,
+    /// Per marker: up to 6 nearest other markers on the neutral within 35 mm, with their
+    /// distances.
+    neighbours: Vec<Vec<(usize, f64)>>,
+    tracks: Vec<Track>,
+    /// Head pose (head → cam0) of the last labeled frame and the one before.
+    pose: Option<Isometry3<f64>>,
+    prev_pose: Option<Isometry3<f64>>,
+    last_frame: Option<usize>,
+    lost_count: usize,
+    rois: [Option<(u32, u32, u32, u32)>; 2],
+    /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
+    /// the noise belongs to the cameras, not the tracks).
+    gate: EpipolarGate,
+    /// The current frame's detections: measured diameter and quality, per camera.
+    blobs: [Vec<(f64, f64)>; 2],
+    /// An acquisition under way over several frames.
+    acquisition: acquisition::Search,
+}
+
+/// A marker's prediction for one labeling pass.
+#[derive(Debug, Clone, Copy)]
+struct Prediction {
+    point: Point3<f64>,
+    pixels: [Option<Point2<f64>>; 2],
+    gate_px: f64,
+    gate_mm: f64,
+}
+
+/// A labeled marker before it becomes output.
+#[derive(Debug, Clone, Copy)]
+struct Label {
+    marker: usize,
+    det: [usize; 2],
+    bundle: Bundle,
+    /// Assigned without a rival in either camera (its residual feeds the gate estimate).
+    confident: bool,
+}
+
+/// Result of one labeling pass.
+struct PassResult {
+    labels: Vec<Label>,
+    paired: usize,
+    rejected: usize,
+}
+
+
+impl Labeler {
+    /// `neutral_markers_head`: each layout marker's position on the neutral mesh (head
+    /// frame, mm), in layout order.
+    ///
+    /// # Errors
+    /// [`LabelError::Layout`] for an empty layout, a count mismatch or non-finite
+    /// positions; [`LabelError::Rig`] for an invalid rig; [`LabelError::Params`].
+    pub fn new(
+        rig: StereoRig,
+        layout: &MarkerLayout,
+        neutral_markers_head: Vec<Point3<f64>>,
+        params: LabelParams,
+    ) -> Result<Self, LabelError> {
+        params.validate().map_err(LabelError::Params)?;
+        rig.validate().map_err(|e| LabelError::Rig(e.to_string()))?;
+        if layout.len() < 3 {
+            return Err(LabelError::Layout(format!(
+                "{} markers; labeling needs at least 3",
+                layout.len()
+            )));
+        }
+        if neutral_markers_head.len() != layout.len() {
+            return Err(LabelError::Layout(format!(
+                "{} neutral positions for {} markers",
+                neutral_markers_head.len(),
+                layout.len()
+            )));
+        }
+        if let Some(i) = neutral_markers_head
+            .iter()
+            .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+        {
+            return Err(LabelError::Layout(format!(
+                "neutral position of marker {} is not finite",
+                layout.markers[i].name
+            )));
+        }
+        let m = layout.len();
+        let mut distances = vec![0.0; m * m];
+        let mut pair_table = Vec::with_capacity(m * (m - 1));
+        for i in 0..m {
+            for j in 0..m {
+                let d = (neutral_markers_head[i] - neutral_markers_head[j]).norm();
+                distances[i * m + j] = d;
+                if i != j {
+                    pair_table.push((d, i as u32, j as u32));
+                }
+            }
+        }
+        pair_table.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let stabilize = layout
+            .markers
+            .iter()
+            .map(|mk| {
+                if mk.stabilize_weight.is_finite() {
+                    mk.stabilize_weight.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let tracks = fresh_tracks(&neutral_markers_head);
+        let mut score_order: Vec<usize> = (0..m).collect();
+        score_order.shuffle(&mut StdRng::seed_from_u64(0x5c0e));
+        let neighbours = (0..m)
+            .map(|i| {
+                let mut near: Vec<(usize, f64)> = (0..m)
+                    .filter(|&j| j != i && distances[i * m + j] <= 35.0)
+                    .map(|j| (j, distances[i * m + j]))
+                    .collect();
+                near.sort_by(|a, b| a.1.total_cmp(&b.1));
+                near.truncate(6);
+                near
+            })
+            .collect();
+        Ok(Self {
+            rig,
+            neutral: neutral_markers_head,
+            stabilize,
+            distances,
+            pair_table,
+            score_order,
+            neighbours,
+            tracks,
+            pose: None,
+            prev_pose: None,
+            last_frame: None,
+            lost_count: 0,
+            rois: [None, None],
+            gate: EpipolarGate::new(EpipolarGateParams {
+                floor_px: params.max_reprojection_px,
+                ceiling_px: params
+                    .epipolar_gate
+                    .ceiling_px
+                    .max(params.max_reprojection_px),
+                ..params.epipolar_gate.clone()
+            }),
+            blobs: [Vec::new(), Vec::new()],
+            acquisition: acquisition::Search::default(),
+            params,
+        })
+    }
+
+    /// The settings.
+    pub fn params(&self) -> &LabelParams {
+        &self.params
+    }
+
+    /// The current epipolar gate (largest RMS reprojection error of a labeled marker),
+    /// pixels, and the measured robust scale of the residuals it comes from (None until
+    /// enough markers were labeled).
+    pub fn epipolar_gate(&self) -> (f64, Option<f64>) {
+        (self.gate.gate_px(), self.gate.sigma_px())
+    }
+
+    /// The head pose (head → cam0) of the last labeled frame; None while acquiring.
+    pub fn head_pose(&self) -> Option<Isometry3<f64>> {
+        self.pose
+    }
+
+    /// Forget all tracks (next frame re-acquires by registration).
+    pub fn reset(&mut self) {
+        self.tracks = fresh_tracks(&self.neutral);
+        self.pose = None;
+        self.prev_pose = None;
+        self.last_frame = None;
+        self.lost_count = 0;
+        self.rois = [None, None];
+    }
+
+    /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
+    /// are expected next frame, None while acquiring. (For the detector's
+    /// `DetectParams::roi`.)
+    pub fn predicted_rois(&self) -> [Option<(u32, u32, u32, u32)>; 2] {
+        self.rois
+    }
+
+    /// Labels one stereo frame's detections (cam0, cam1). Never panics on any input.
+    pub fn process(&mut self, frame: usize, detections: [&[Detection]; 2]) -> LabeledFrame {
+        let m = self.neutral.len();
+        let mut stats = LabelStats {
+            detections: [detections[0].len(), detections[1].len()],
+            ..LabelStats::default()
+        };
+        self.blobs = [0, 1].map(|c| {
+            detections[c]
+                .iter()
+                .map(|d| (d.diameter_px, d.quality))
+                .collect()
+        });
+        // Detections with non-finite centres are never used.
+        let pixels: [Vec<Option<Point2<f64>>>; 2] = [0, 1].map(|c| {
+            detections[c]
+                .iter()
+                .map(|d| {
+                    let p = d.centre_px;
+                    (p.x.is_finite() && p.y.is_finite()).then_some(p)
+                })
+                .collect()
+        });
+        let steps = match self.last_frame {
+            Some(last) if frame > last && frame - last <= self.params.max_frame_gap => frame - last,
+            Some(_) => {
+                tracing::debug!(frame, "frame gap or out of order: re-acquiring");
+                self.reset();
+                1
+            }
+            None => 1,
+        };
+        let mut result = None;
+        if self.pose.is_some() {
+            result = self.track(&pixels, steps);
+        }
+        if result.is_none() {
+            // Acquisition (also right after tracking was lost).
+            self.reset();
+            stats.acquiring = true;
+            result = self.acquire(&pixels, &mut stats);
+        }
+        let mut out = vec![None; m];
+        let Some((pose, pass)) = result else {
+            self.last_frame = None;
+            return LabeledFrame {
+                markers: out,
+                stats,
+            };
+        };
+        stats.paired = stats.paired.max(pass.paired);
+        stats.rejected += pass.rejected;
+        self.gate.update(
+            pass.labels
+                .iter()
+                .filter(|l| l.confident)
+                .map(|l| l.bundle.reprojection_px),
+        );
+        let mut seen = vec![false; m];
+        let inverse = pose.inverse();
+        for l in &pass.labels {
+            let track = &mut self.tracks[l.marker];
+            let reacquired = matches!(track.frames_since_seen, Some(n) if n > 0);
+            let head = inverse * l.bundle.point_in_cam0;
+            track.velocity = if track.frames_since_seen == Some(0) {
+                (head - track.head) / steps as f64
+            } else {
+                Vector3::zeros()
+            };
+            track.head = head;
+            seen[l.marker] = true;
+            stats.labeled += 1;
+            stats.reacquired += usize::from(reacquired);
+            let px = |c: usize| pixels[c][l.det[c]].unwrap_or_else(Point2::origin);
+            out[l.marker] = Some(LabeledMarker {
+                bundle: l.bundle,
+                pixels: [px(0), px(1)],
+                detections: l.det,
+                reacquired,
+            });
+        }
+        for (track, &s) in self.tracks.iter_mut().zip(&seen) {
+            if !s {
+                track.velocity = Vector3::zeros();
+                track.frames_since_seen = track.frames_since_seen.map(|n| n + steps);
+            } else {
+                track.frames_since_seen = Some(0);
+            }
+        }
+        if stats.labeled < self.params.lost_min_markers {
+            self.lost_count += 1;
+        } else {
+            self.lost_count = 0;
+        }
+        if self.lost_count >= self.params.lost_frames {
+            tracing::debug!(frame, "tracking lost: re-acquiring next frame");
+            self.reset();
+        } else {
+            self.prev_pose = if steps == 1 { self.pose } else { None };
+            self.pose = Some(pose);
+            self.last_frame = Some(frame);
+            self.rois = self.compute_rois();
+        }
+        LabeledFrame {
+            markers: out,
+            stats,
+        }
+    }
+
+    /// Bounding boxes of the next frame's predicted marker pixels, grown by the margin.
+    fn compute_rois(&self) -> [Option<(u32, u32, u32, u32)>; 2] {
+        let Some(pose) = self.predicted_pose(1) else {
+            return [None, None];
+        };
+        let preds = self.predictions(&pose, 1, self.params.pose_pass_extra_gate_px);
+        [0, 1].map(|c| {
+            let cam = if c == 0 {
+                &self.rig.cam0
+            } else {
+                &self.rig.cam1
+            };
+            let mut bb: Option<(f64, f64, f64, f64)> = None;
+            for pr in &preds {
+                let Some(q) = pr.pixels[c] else { continue };
+                let g = pr.gate_px + self.params.roi_margin_px;
+                let b = (q.x - g, q.y - g, q.x + g, q.y + g);
+                bb = Some(match bb {
+                    None => b,
+                    Some(a) => (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)),
+                });
+            }
+            let (x0, y0, x1, y1) = bb?;
+            let (w, h) = (f64::from(cam.width_px), f64::from(cam.height_px));
+            let x0 = x0.floor().clamp(0.0, w) as u32;
+            let y0 = y0.floor().clamp(0.0, h) as u32;
+            let x1 = (x1.ceil() + 1.0).clamp(0.0, w) as u32;
+            let y1 = (y1.ceil() + 1.0).clamp(0.0, h) as u32;
+            (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
+        })
+    }
+}
+
+fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
+    neutral
+        .iter()
+        .map(|q| Track {
+            head: *q,
+            velocity: Vector3::zeros(),
+            frames_since_seen: None,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,504 @@
+//! Tests of tracking and labeling on a synthetic face cap seen by the default rig.
+
+use super::*;
+use crate::dataset::Marker;
+use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion};
+
+/// Deterministic uniform numbers in [0, 1).
+struct Rng(rand::rngs::StdRng);
+impl Rng {
+    fn new(seed: u64) -> Self {
+        Self(rand::SeedableRng::seed_from_u64(seed))
+    }
+    fn uniform(&mut self) -> f64 {
+        rand::Rng::random::<f64>(&mut self.0)
+    }
+    fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.uniform()
+    }
+    fn normal(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-12);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// A face-like cap of markers (head frame, +z out of the face, +y up), at least 9 mm
+/// apart; stabilizing weights high on the upper part.
+fn face(seed: u64) -> (MarkerLayout, Vec<Point3<f64>>) {
+    let mut rng = Rng::new(seed);
+    let mut pts: Vec<Point3<f64>> = Vec::new();
+    for _ in 0..20000 {
+        if pts.len() >= 100 {
+            break;
+        }
+        let x = rng.range(-65.0, 65.0);
+        let y = rng.range(-85.0, 75.0);
+        if (x / 65.0).powi(2) + (y / 85.0).powi(2) > 1.0 {
+            continue;
+        }
+        let p = Point3::new(x, y, 60.0 - x * x / 140.0 - y * y / 260.0);
+        if pts.iter().all(|q| (q - p).norm() >= 9.0) {
+            pts.push(p);
+        }
+    }
+    let layout = MarkerLayout {
+        markers: pts
+            .iter()
+            .enumerate()
+            .map(|(k, p)| Marker {
+                name: format!("M{k:03}"),
+                vertex: k as u32,
+                stabilize_weight: if p.y > 20.0 { 0.95 } else { 0.1 },
+            })
+            .collect(),
+    };
+    (layout, pts)
+}
+
+fn normal_at(p: &Point3<f64>) -> Vector3<f64> {
+    Vector3::new(p.x / 70.0, p.y / 130.0, 1.0).normalize()
+}
+
+/// The head pose that puts the face centre `distance` mm in front of the rig, facing
+/// it, then turned by `angles` (radians, about the face centre) and shifted.
+fn pose_facing(
+    rig: &StereoRig,
+    distance: f64,
+    angles: Vector3<f64>,
+    shift: Vector3<f64>,
+) -> Isometry3<f64> {
+    let c1 = rig.cam1_centre_in_cam0();
+    let mid = Point3::from(c1.coords * 0.5);
+    let axis1 = rig.cam1_from_cam0.rotation.inverse() * Vector3::z();
+    let axis = (Vector3::z() + axis1).normalize();
+    let z_h = -axis;
+    let y_h = (-Vector3::y() - z_h * z_h.dot(&-Vector3::y())).normalize();
+    let x_h = y_h.cross(&z_h);
+    let base = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x_h, y_h, z_h]));
+    let turn = Rotation3::from_euler_angles(angles.x, angles.y, angles.z);
+    let rotation = base * turn;
+    let centre_head = Vector3::new(0.0, 0.0, 40.0);
+    let target = mid + axis * distance + shift;
+    let t = target.coords - rotation * centre_head;
+    Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&rotation),
+    )
+}
+
+/// Detections of both cameras with the true marker of each (None: a spurious blob),
+/// shuffled. `hidden` markers are not drawn.
+fn observe(
+    rig: &StereoRig,
+    pose: &Isometry3<f64>,
+    pts: &[Point3<f64>],
+    hidden: &[usize],
+    noise_px: f64,
+    spurious: usize,
+    rng: &mut Rng,
+) -> [(Vec<Detection>, Vec<Option<usize>>); 2] {
+    [0, 1].map(|c| {
+        let mut items: Vec<(Point2<f64>, Option<usize>, f64)> = Vec::new();
+        let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+        let cam_from_head: Isometry3<f64> = if c == 0 {
+            *pose
+        } else {
+            let r = UnitQuaternion::from_rotation_matrix(&rig.cam1_from_cam0.rotation);
+            Isometry3::from_parts(rig.cam1_from_cam0.translation, r) * pose
+        };
+        for (k, p) in pts.iter().enumerate() {
+            if hidden.contains(&k) {
+                continue;
+            }
+            let pc = cam_from_head * p;
+            let n = cam_from_head.rotation * normal_at(p);
+            if n.dot(&(-pc.coords.normalize())) < 0.26 {
+                continue;
+            }
+            let Some(px) = cam.project(&pc.coords) else {
+                continue;
+            };
+            let px = Point2::new(
+                px.x + noise_px * rng.normal(),
+                px.y + noise_px * rng.normal(),
+            );
+            if cam.contains(&px) {
+                // The blob of a 2.4 mm dot at its distance, a pixel wider for the rim.
+                let diameter = cam.fx() * 2.4 / pc.coords.norm() + 1.0;
+                items.push((px, Some(k), diameter));
+            }
+        }
+        for _ in 0..spurious {
+            let px = Point2::new(rng.range(0.0, 1279.0), rng.range(0.0, 1023.0));
+            // Blobs of a dot's size: the hardest clutter.
+            items.push((px, None, 8.0));
+        }
+        // Shuffle.
+        for k in (1..items.len()).rev() {
+            let j = (rng.uniform() * (k + 1) as f64) as usize;
+            items.swap(k, j.min(k));
+        }
+        let dets = items
+            .iter()
+            .map(|(px, _, diameter)| Detection {
+                centre_px: *px,
+                area_px: 12,
+                roundness: 0.9,
+                contrast_dn: 60.0,
+                quality: 0.5,
+                diameter_px: *diameter,
+            })
+            .collect();
+        (dets, items.iter().map(|x| x.1).collect())
+    })
+}
+
+/// (correct, wrong) labels of a frame; panics on nothing.
+fn count(frame: &LabeledFrame, truth: &[Vec<Option<usize>>; 2]) -> (usize, usize) {
+    let (mut ok, mut wrong) = (0, 0);
+    for (i, m) in frame.markers.iter().enumerate() {
+        if let Some(m) = m {
+            if truth[0][m.detections[0]] == Some(i) && truth[1][m.detections[1]] == Some(i) {
+                ok += 1;
+            } else {
+                wrong += 1;
+            }
+        }
+    }
+    (ok, wrong)
+}
+
+fn visible_both(truth: &[Vec<Option<usize>>; 2]) -> usize {
+    truth[0]
+        .iter()
+        .flatten()
+        .filter(|k| truth[1].contains(&Some(**k)))
+        .count()
+}
+
+fn labeler(layout: &MarkerLayout, pts: &[Point3<f64>]) -> Labeler {
+    let rig = crate::synth::default_rig().unwrap();
+    Labeler::new(rig, layout, pts.to_vec(), LabelParams::default()).unwrap()
+}
+
+#[test]
+fn acquires_under_arbitrary_head_poses() {
+    let rig = crate::synth::default_rig().unwrap();
+    let (layout, pts) = face(3);
+    assert!(pts.len() >= 90, "{}", pts.len());
+    let mut rng = Rng::new(11);
+    for trial in 0..8 {
+        let angles = Vector3::new(
+            rng.range(-0.45, 0.45),
+            rng.range(-0.5, 0.5),
+            rng.range(-0.6, 0.6),
+        );
+        let shift = Vector3::new(
+            rng.range(-20.0, 20.0),
+            rng.range(-20.0, 20.0),
+            rng.range(-25.0, 25.0),
+        );
+        let pose = pose_facing(&rig, 230.0, angles, shift);
+        let obs = observe(&rig, &pose, &pts, &[], 0.15, 5, &mut rng);
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let mut lab = labeler(&layout, &pts);
+        assert_eq!(lab.predicted_rois(), [None, None]);
+        let out = lab.process(0, [&obs[0].0, &obs[1].0]);
+        let (ok, wrong) = count(&out, &truth);
+        let vis = visible_both(&truth);
+        assert_eq!(wrong, 0, "trial {trial}: {wrong} wrong labels");
+        assert!(
+            ok as f64 >= 0.95 * vis as f64,
+            "trial {trial}: {ok} of {vis} labeled ({:?})",
+            out.stats
+        );
+        assert!(out.stats.acquiring && out.stats.labeled == ok);
+        let est = lab.head_pose().unwrap();
+        assert!((est.translation.vector - pose.translation.vector).norm() < 1.0);
+        assert!(lab.predicted_rois().iter().all(Option::is_some));
+    }
+}
+
+#[test]
+fn no_acquisition_without_a_face() {
+    let (layout, pts) = face(3);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(5);
+    let rig = crate::synth::default_rig().unwrap();
+    // Random points in front of the cameras: pairs exist but nothing registers.
+    let cloud: Vec<Point3<f64>> = (0..90)
+        .map(|_| {
+            Point3::new(
+                rng.range(-70.0, 70.0),
+                rng.range(-40.0, 110.0),
+                rng.range(180.0, 260.0),
+            )
+        })
+        .collect();
+    let px0: Vec<Detection> = cloud
+        .iter()
+        .filter_map(|p| rig.cam0.project(&p.coords))
+        .map(|c| Detection {
+            centre_px: c,
+            area_px: 10,
+            roundness: 1.0,
+            contrast_dn: 50.0,
+            quality: 0.5,
+            diameter_px: 8.0,
+        })
+        .collect();
+    let px1: Vec<Detection> = cloud
+        .iter()
+        .filter_map(|p| rig.cam1.project(&(rig.cam1_from_cam0 * p).coords))
+        .map(|c| Detection {
+            centre_px: c,
+            area_px: 10,
+            roundness: 1.0,
+            contrast_dn: 50.0,
+            quality: 0.5,
+            diameter_px: 8.0,
+        })
+        .collect();
+    let out = lab.process(0, [&px0, &px1]);
+    assert_eq!(out.stats.labeled, 0, "{:?}", out.stats);
+    assert!(out.stats.acquiring && out.markers.iter().all(Option::is_none));
+}
+
+/// A head moving fast with random accelerations, a changing expression, an
+/// occlusion of ten markers, spurious blobs: everything labeled is right.
+fn run_sequence(
+    frames: usize,
+    rot_acc: f64,
+    trans_acc: f64,
+    spurious: usize,
+    hide: Option<(std::ops::Range<usize>, Vec<usize>)>,
+    seed: u64,
+) -> (usize, usize, usize, usize) {
+    let rig = crate::synth::default_rig().unwrap();
+    let (layout, pts) = face(seed);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(seed + 100);
+    let (mut angles, mut shift) = (Vector3::zeros(), Vector3::zeros());
+    let (mut w, mut v) = (Vector3::<f64>::zeros(), Vector3::<f64>::zeros());
+    let (mut ok_total, mut wrong_total, mut vis_total, mut reacq) = (0, 0, 0, 0);
+    for f in 0..frames {
+        if f >= 5 {
+            w += Vector3::new(rng.normal(), rng.normal(), rng.normal()) * rot_acc;
+            v += Vector3::new(rng.normal(), rng.normal(), rng.normal()) * trans_acc;
+            // Keep the head in a plausible range: pull back toward the centre.
+            w -= angles * 0.05 + w * 0.05;
+            v -= shift * 0.05 + v * 0.05;
+        }
+        angles += w;
+        shift += v;
+        let pose = pose_facing(&rig, 230.0, angles, shift);
+        // Expression: smooth motion of up to 3 mm of the lower markers.
+        let t = f as f64 / 60.0;
+        let moved: Vec<Point3<f64>> = pts
+            .iter()
+            .map(|p| {
+                let a = 0.3 + 2.7 * ((20.0 - p.y) / 40.0).clamp(0.0, 1.0);
+                p + Vector3::new(
+                    0.3 * a * (3.0 * t + p.y / 40.0).cos(),
+                    a * (2.0 * t + p.x / 30.0).sin(),
+                    0.3 * a * (3.0 * t).cos(),
+                )
+            })
+            .collect();
+        let hidden: Vec<usize> = match &hide {
+            Some((range, set)) if range.contains(&f) => set.clone(),
+            _ => Vec::new(),
+        };
+        let obs = observe(&rig, &pose, &moved, &hidden, 0.15, spurious, &mut rng);
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(f, [&obs[0].0, &obs[1].0]);
+        let (ok, wrong) = count(&out, &truth);
+        if (ok as f64) < 0.9 * visible_both(&truth) as f64 {
+            eprintln!(
+                "frame {f}: {ok} of {} {:?}",
+                visible_both(&truth),
+                out.stats
+            );
+        }
+        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels, {:?}", out.stats);
+        if let Some((range, set)) = &hide
+            && f == range.end + 2
+        {
+            for &k in set {
+                assert!(out.markers[k].is_some(), "marker {k} not back at frame {f}");
+            }
+        }
+        reacq += out.stats.reacquired;
+        ok_total += ok;
+        wrong_total += wrong;
+        vis_total += visible_both(&truth);
+    }
+    (ok_total, wrong_total, vis_total, reacq)
+}
+
+#[test]
+fn tracks_through_fast_motion() {
+    // Rotation speeds reach several degrees per frame, translations several mm per
+    // frame, with random changes of direction.
+    let (ok, wrong, vis, _) = run_sequence(150, 0.006, 0.8, 0, None, 3);
+    assert_eq!(wrong, 0);
+    let rate = ok as f64 / vis as f64;
+    assert!(rate > 0.97, "{ok} of {vis}");
+}
+
+#[test]
+fn occluded_markers_return_with_their_labels() {
+    let hide = (30..50, vec![2, 5, 17, 23, 41, 42, 60, 77, 80, 91]);
+    let (ok, wrong, vis, reacq) = run_sequence(80, 0.002, 0.3, 0, Some(hide), 4);
+    assert_eq!(wrong, 0);
+    assert!(reacq >= 10, "{reacq} reacquired");
+    assert!(ok as f64 > 0.97 * vis as f64, "{ok} of {vis}");
+}
+
+#[test]
+fn spurious_blobs_are_rejected() {
+    let (ok, wrong, vis, _) = run_sequence(60, 0.002, 0.3, 60, None, 5);
+    assert_eq!(wrong, 0);
+    assert!(ok as f64 > 0.95 * vis as f64, "{ok} of {vis}");
+}
+
+#[test]
+fn markers_in_contact_are_dropped_not_swapped() {
+    // Two markers slide toward each other until they nearly touch (lips pressing),
+    // then apart again.
+    let rig = crate::synth::default_rig().unwrap();
+    let (layout, pts) = face(6);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(66);
+    // The closest pair of lower-face markers.
+    let mut pair = (0, 1, f64::MAX);
+    for i in 0..pts.len() {
+        for j in i + 1..pts.len() {
+            let d = (pts[i] - pts[j]).norm();
+            if pts[i].y < 0.0 && d < pair.2 {
+                pair = (i, j, d);
+            }
+        }
+    }
+    let (a, b, _) = pair;
+    let pose = pose_facing(
+        &rig,
+        230.0,
+        Vector3::new(0.05, -0.1, 0.02),
+        Vector3::zeros(),
+    );
+    let mut dropped = 0;
+    for f in 0..120 {
+        // Closure 0 → 1 → 0 over frames 20..100.
+        let s = ((f as f64 - 20.0) / 80.0).clamp(0.0, 1.0);
+        let closure = (std::f64::consts::PI * s).sin();
+        let mid = Point3::from((pts[a].coords + pts[b].coords) * 0.5);
+        let mut moved = pts.clone();
+        // Down to 1 mm apart.
+        let keep = 1.0 - closure * (1.0 - 1.0 / (pts[a] - pts[b]).norm());
+        moved[a] = mid + (pts[a] - mid) * keep;
+        moved[b] = mid + (pts[b] - mid) * keep;
+        let obs = observe(&rig, &pose, &moved, &[], 0.2, 0, &mut rng);
+        // Nearly touching dots merge into one blob in the image: detections closer
+        // than 4 px become one at their mean, which belongs to neither marker.
+        let mut merged = [obs[0].clone(), obs[1].clone()];
+        for (dets, truth) in &mut merged {
+            let ia = truth.iter().position(|t| *t == Some(a));
+            let ib = truth.iter().position(|t| *t == Some(b));
+            if let (Some(ia), Some(ib)) = (ia, ib)
+                && (dets[ia].centre_px - dets[ib].centre_px).norm() < 4.0
+            {
+                let c = nalgebra::center(&dets[ia].centre_px, &dets[ib].centre_px);
+                dets[ia].centre_px = c;
+                truth[ia] = None;
+                dets.remove(ib);
+                truth.remove(ib);
+            }
+        }
+        let truth = [merged[0].1.clone(), merged[1].1.clone()];
+        let out = lab.process(f, [&merged[0].0, &merged[1].0]);
+        let (_, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}");
+        if out.markers[a].is_none() || out.markers[b].is_none() {
+            dropped += 1;
+        }
+    }
+    // Labeled again after separating.
+    assert!(dropped < 100, "{dropped}");
+}
+
+#[test]
+fn never_panics_on_garbage_and_recovers() {
+    let rig = crate::synth::default_rig().unwrap();
+    let (layout, pts) = face(3);
+    let mut lab = labeler(&layout, &pts);
+    let bad = |x: f64, y: f64| Detection {
+        centre_px: Point2::new(x, y),
+        area_px: 0,
+        roundness: f64::NAN,
+        contrast_dn: -1.0,
+        quality: f64::INFINITY,
+        diameter_px: f64::NAN,
+    };
+    let garbage = vec![
+        bad(f64::NAN, 3.0),
+        bad(f64::INFINITY, f64::NEG_INFINITY),
+        bad(-1e300, 1e300),
+        bad(640.0, 512.0),
+        bad(640.0, 512.0),
+    ];
+    for f in [0, 1, 1, 0, 7, 1000, usize::MAX] {
+        let out = lab.process(f, [&garbage, &[]]);
+        assert_eq!(out.markers.len(), layout.len());
+        let out = lab.process(f, [&garbage, &garbage]);
+        assert_eq!(out.stats.labeled, 0);
+    }
+    // Then a real face: acquired.
+    let mut rng = Rng::new(1);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let obs = observe(&rig, &pose, &pts, &[], 0.1, 0, &mut rng);
+    let out = lab.process(3, [&obs[0].0, &obs[1].0]);
+    assert!(out.stats.labeled > 50, "{:?}", out.stats);
+    // A frame of nothing, a few times: lost, then re-acquired.
+    for f in 4..8 {
+        let out = lab.process(f, [&[], &[]]);
+        assert_eq!(out.stats.labeled, 0);
+    }
+    let truth = [obs[0].1.clone(), obs[1].1.clone()];
+    let out = lab.process(8, [&obs[0].0, &obs[1].0]);
+    assert!(out.stats.acquiring && out.stats.labeled > 50);
+    assert_eq!(count(&out, &truth).1, 0);
+}
+
+#[test]
+fn rejects_bad_construction() {
+    let rig = crate::synth::default_rig().unwrap();
+    let (layout, pts) = face(3);
+    let short = pts[..5].to_vec();
+    assert!(matches!(
+        Labeler::new(rig.clone(), &layout, short, LabelParams::default()),
+        Err(LabelError::Layout(_))
+    ));
+    let mut nan = pts.clone();
+    nan[3].x = f64::NAN;
+    assert!(matches!(
+        Labeler::new(rig.clone(), &layout, nan, LabelParams::default()),
+        Err(LabelError::Layout(_))
+    ));
+    let p = LabelParams {
+        gate_px: -1.0,
+        ..Default::default()
+    };
+    assert!(matches!(
+        Labeler::new(rig.clone(), &layout, pts.clone(), p),
+        Err(LabelError::Params(_))
+    ));
+    let mut bad_rig = rig;
+    bad_rig.cam1.width_px = 10;
+    assert!(matches!(
+        Labeler::new(bad_rig, &layout, pts, LabelParams::default()),
+        Err(LabelError::Rig(_))
+    ));
+}
+

@@ -1,0 +1,364 @@
+//! Tracking from the last frame's state: prediction of the head pose and the markers,
+//! per-camera gated assignment, left/right pairing under the epipolar and 3D gates, and the
+//! head pose of the frame (module docs of [`super`], "Tracking").
+
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
+
+use super::assignment::assign_components;
+use super::{Label, Labeler, PassResult, Prediction};
+use crate::align::horn_alignment;
+use crate::stereo::{Bundle, TriangulateParams, triangulate};
+
+impl Labeler {
+    /// Whether detections `det` (cam0, cam1) are the size of a painted dot at `point` (cam0
+    /// frame, mm): [`super::LabelParams::dot_size_ratio`] of the expected diameter in each
+    /// camera, plus 2 px either way.
+    pub(super) fn dot_sized(&self, point: &Point3<f64>, det: [usize; 2]) -> bool {
+        let (lo, hi) = self.params.dot_size_ratio;
+        let in_cam1 = self.rig.cam1_from_cam0 * point;
+        let depths = [point.coords.norm(), in_cam1.coords.norm()];
+        let focals = [self.rig.cam0.fx(), self.rig.cam1.fx()];
+        (0..2).all(|c| {
+            // A detector that does not measure sizes gives NaN: no size check.
+            let Some(&(measured, _)) = self.blobs[c].get(det[c]) else {
+                return true;
+            };
+            if !measured.is_finite() {
+                return true;
+            }
+            let expected = focals[c] * self.params.dot_diameter_mm / depths[c].max(1.0);
+            measured >= lo * expected - 2.0 && measured <= hi * expected + 2.0
+        })
+    }
+
+    /// Constant-velocity prediction of the head pose `steps` frames after the last one.
+    pub(super) fn predicted_pose(&self, steps: usize) -> Option<Isometry3<f64>> {
+        let pose = self.pose?;
+        let Some(prev) = self.prev_pose else {
+            return Some(pose);
+        };
+        let delta = pose * prev.inverse();
+        let mut p = pose;
+        for _ in 0..steps {
+            p = delta * p;
+        }
+        Some(p)
+    }
+
+    /// Predictions of all markers under `pose`, with the gates of the final pass plus
+    /// `extra_gate_px`; `steps` frames of expression motion are carried.
+    pub(super) fn predictions(
+        &self,
+        pose: &Isometry3<f64>,
+        steps: usize,
+        extra_gate_px: f64,
+    ) -> Vec<Prediction> {
+        let p = &self.params;
+        let f = self.rig.cam0.fx().min(self.rig.cam1.fx()).max(1e-9);
+        self.tracks
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let motion = t.velocity * (p.velocity_damping * steps as f64);
+                let head = if t.frames_since_seen == Some(0) {
+                    t.head
+                } else {
+                    self.head_from_neighbours(i).unwrap_or(t.head)
+                };
+                let point = pose * (head + motion);
+                let pixels = self.project_both(&point);
+                let depth = point.coords.norm().max(1.0);
+                let motion_px = motion.norm() * f / depth;
+                let gap_gate = match t.frames_since_seen {
+                    Some(0) => p.gate_px,
+                    Some(n) => (p.gate_px + p.gate_growth_px_per_frame * n as f64)
+                        .min(p.max_gap_gate_px.max(p.gate_px)),
+                    None => p.max_gap_gate_px.max(p.gate_px),
+                };
+                let gate_px = gap_gate + p.velocity_gate_factor * motion_px + extra_gate_px;
+                let gate_mm = p.gate_3d_factor * gate_px * depth / f;
+                Prediction {
+                    point,
+                    pixels,
+                    gate_px,
+                    gate_mm,
+                }
+            })
+            .collect()
+    }
+
+    /// Head-frame position of a marker not labeled in the last frame: its neutral
+    /// position moved like its neighbours that were (inverse-distance weights); None
+    /// with fewer than two such neighbours.
+    pub(super) fn head_from_neighbours(&self, i: usize) -> Option<Point3<f64>> {
+        let (mut sum, mut wsum, mut count) = (Vector3::zeros(), 0.0, 0);
+        for &(j, d) in &self.neighbours[i] {
+            let t = &self.tracks[j];
+            if t.frames_since_seen == Some(0) {
+                let w = 1.0 / (d + 5.0);
+                sum += (t.head - self.neutral[j]) * w;
+                wsum += w;
+                count += 1;
+            }
+        }
+        (count >= 2).then(|| self.neutral[i] + sum / wsum)
+    }
+
+    /// Pixels of a cam0 point in both cameras (None behind a camera or outside its image).
+    pub(super) fn project_both(&self, point: &Point3<f64>) -> [Option<Point2<f64>>; 2] {
+        let p0 = self
+            .rig
+            .cam0
+            .project(&point.coords)
+            .filter(|q| self.rig.cam0.contains(q));
+        let p1 = self
+            .rig
+            .cam1
+            .project(&(self.rig.cam1_from_cam0 * point).coords)
+            .filter(|q| self.rig.cam1.contains(q));
+        [p0, p1]
+    }
+
+    /// Tracking from the last frame's state: the two passes of the module docs. None when
+    /// the frame cannot be labeled from the tracks (re-acquire).
+    pub(super) fn track(
+        &mut self,
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        steps: usize,
+    ) -> Option<(Isometry3<f64>, PassResult)> {
+        let predicted = self.predicted_pose(steps)?;
+        // Pass 1: wide gates, labels used only to estimate the head pose of this frame.
+        let wide = self.predictions(&predicted, steps, self.params.pose_pass_extra_gate_px);
+        let first = self.label_pass(&wide, pixels);
+        let pose = self
+            .estimate_pose(&first.labels)
+            .map_or(predicted, |(pose, _)| pose);
+        // Pass 2: tight gates around predictions under the estimated pose.
+        let tight = self.predictions(&pose, steps, 0.0);
+        let mut second = self.label_pass(&tight, pixels);
+        let final_pose = match self.estimate_pose(&second.labels) {
+            Some((pose, rms)) if rms <= self.params.max_pose_rms_mm => pose,
+            Some((_, rms)) => {
+                tracing::debug!(rms, "head pose does not fit the labels: frame dropped");
+                second.rejected += second.labels.len();
+                second.labels.clear();
+                pose
+            }
+            None => pose,
+        };
+        Some((final_pose, second))
+    }
+
+    /// Weighted robust Horn fit of the head pose to labels: sources are the neutral
+    /// positions weighted by the layout's stabilizing weights (drift-free); with too
+    /// little stabilizing weight labeled, the tracks' head positions with unit weights.
+    /// Returns the pose and the weighted RMS residual of the inliers, mm.
+    pub(super) fn estimate_pose(&self, labels: &[Label]) -> Option<(Isometry3<f64>, f64)> {
+        if labels.len() < 3 {
+            return None;
+        }
+        let stab: f64 = labels.iter().map(|l| self.stabilize[l.marker]).sum();
+        let use_neutral = stab >= 3.0;
+        let src: Vec<Point3<f64>> = labels
+            .iter()
+            .map(|l| {
+                if use_neutral {
+                    self.neutral[l.marker]
+                } else {
+                    self.tracks[l.marker].head
+                }
+            })
+            .collect();
+        let dst: Vec<Point3<f64>> = labels.iter().map(|l| l.bundle.point_in_cam0).collect();
+        let base: Vec<f64> = labels
+            .iter()
+            .map(|l| {
+                if use_neutral {
+                    self.stabilize[l.marker]
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        robust_horn(&src, &dst, &base)
+    }
+
+    /// One labeling pass: per-camera gated optimal assignment, then left/right pairing
+    /// under the epipolar constraint and the 3D gate (steps 2-3 of the module docs).
+    pub(super) fn label_pass(
+        &self,
+        preds: &[Prediction],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+    ) -> PassResult {
+        let p = &self.params;
+        let m = preds.len();
+        // Per camera: candidates (within the gate) of every marker, and the assignment.
+        let mut candidates: [Vec<Vec<(usize, f64)>>; 2] =
+            [vec![Vec::new(); m], vec![Vec::new(); m]];
+        let mut assigned: [Vec<Option<(usize, bool)>>; 2] = [vec![None; m], vec![None; m]];
+        for c in 0..2 {
+            let dets = &pixels[c];
+            for (i, pr) in preds.iter().enumerate() {
+                let Some(q) = pr.pixels[c] else { continue };
+                for (a, d) in dets.iter().enumerate() {
+                    let Some(d) = d else { continue };
+                    let e = (d - q).norm();
+                    if e <= pr.gate_px {
+                        candidates[c][i].push((a, e));
+                    }
+                }
+                candidates[c][i].sort_by(|x, y| x.1.total_cmp(&y.1));
+            }
+            // Markers per detection (for column rivals).
+            let mut by_det: Vec<Vec<(usize, f64)>> = vec![Vec::new(); dets.len()];
+            for (i, cands) in candidates[c].iter().enumerate() {
+                for &(a, e) in cands {
+                    by_det[a].push((i, e));
+                }
+            }
+            for (i, a) in assign_components(&candidates[c], dets.len()) {
+                let e = candidates[c][i]
+                    .iter()
+                    .find(|x| x.0 == a)
+                    .map_or(f64::INFINITY, |x| x.1);
+                let limit = p.ambiguity_ratio * e + p.ambiguity_margin_px;
+                let row_rival = candidates[c][i].iter().any(|&(b, eb)| b != a && eb < limit);
+                let col_rival = by_det[a].iter().any(|&(j, ej)| j != i && ej < limit);
+                assigned[c][i] = Some((a, row_rival || col_rival));
+            }
+        }
+        let tri = TriangulateParams {
+            max_reprojection_px: self.gate.gate_px(),
+            ..p.pair.triangulate.clone()
+        };
+        let check = |i: usize, a: usize, b: usize| -> Option<Bundle> {
+            let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
+                return None;
+            };
+            let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
+            ((bundle.point_in_cam0 - preds[i].point).norm() <= preds[i].gate_mm
+                && self.dot_sized(&bundle.point_in_cam0, [a, b]))
+            .then_some(bundle)
+        };
+        let mut labels = Vec::new();
+        let mut used: [Vec<bool>; 2] = [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
+        let mut paired = 0;
+        let mut rejected = 0;
+        let mut in_doubt = Vec::new();
+        for i in 0..m {
+            if candidates[0][i].is_empty() || candidates[1][i].is_empty() {
+                continue;
+            }
+            paired += 1;
+            match (assigned[0][i], assigned[1][i]) {
+                (Some((a, false)), Some((b, false))) => match check(i, a, b) {
+                    Some(bundle) => {
+                        used[0][a] = true;
+                        used[1][b] = true;
+                        labels.push(Label {
+                            marker: i,
+                            det: [a, b],
+                            bundle,
+                            confident: true,
+                        });
+                    }
+                    None => rejected += 1,
+                },
+                _ => in_doubt.push(i),
+            }
+        }
+        // Markers in doubt in a camera: exactly one candidate pair among free detections
+        // must pass the epipolar and 3D gates.
+        let mut tentative: Vec<Label> = Vec::new();
+        for &i in &in_doubt {
+            let mut found: Option<Label> = None;
+            let mut count = 0;
+            for &(a, _) in candidates[0][i].iter().take(4) {
+                if used[0][a] {
+                    continue;
+                }
+                for &(b, _) in candidates[1][i].iter().take(4) {
+                    if used[1][b] {
+                        continue;
+                    }
+                    if let Some(bundle) = check(i, a, b) {
+                        count += 1;
+                        found = Some(Label {
+                            marker: i,
+                            det: [a, b],
+                            bundle,
+                            confident: false,
+                        });
+                    }
+                }
+            }
+            match (count, found) {
+                (1, Some(l)) => tentative.push(l),
+                _ => rejected += 1,
+            }
+        }
+        // A detection claimed by two markers in doubt labels neither.
+        let mut claims: [Vec<u32>; 2] = [vec![0; pixels[0].len()], vec![0; pixels[1].len()]];
+        for l in &tentative {
+            claims[0][l.det[0]] += 1;
+            claims[1][l.det[1]] += 1;
+        }
+        for l in tentative {
+            if claims[0][l.det[0]] == 1 && claims[1][l.det[1]] == 1 {
+                labels.push(l);
+            } else {
+                rejected += 1;
+            }
+        }
+        PassResult {
+            labels,
+            paired,
+            rejected,
+        }
+    }
+}
+
+/// Weighted Horn with outlier rejection: residuals above `max(3·median, 1 mm)` are
+/// dropped, twice. Returns the pose and the weighted RMS residual of the kept points.
+fn robust_horn(
+    src: &[Point3<f64>],
+    dst: &[Point3<f64>],
+    base: &[f64],
+) -> Option<(Isometry3<f64>, f64)> {
+    let mut w = base.to_vec();
+    let mut t = horn_alignment(src, dst, &w).ok()?;
+    for _ in 0..2 {
+        let res: Vec<f64> = src
+            .iter()
+            .zip(dst)
+            .map(|(s, d)| (t * s - d).norm())
+            .collect();
+        let mut kept: Vec<f64> = res
+            .iter()
+            .zip(base)
+            .filter(|(_, b)| **b > 0.0)
+            .map(|(r, _)| *r)
+            .collect();
+        if kept.len() < 3 {
+            break;
+        }
+        let mid = kept.len() / 2;
+        let median = *kept.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let limit = (3.0 * median).max(1.0);
+        w = base
+            .iter()
+            .zip(&res)
+            .map(|(b, r)| if *r <= limit { *b } else { 0.0 })
+            .collect();
+        if w.iter().filter(|x| **x > 0.0).count() < 3 {
+            return None;
+        }
+        t = horn_alignment(src, dst, &w).ok()?;
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((s, d), wi) in src.iter().zip(dst).zip(&w) {
+        num += wi * (t * s - d).norm_squared();
+        den += wi;
+    }
+    (den > 0.0).then(|| (t, (num / den).sqrt()))
+}
