@@ -16,14 +16,20 @@
 //! motion blur, Gaussian sensor noise and 8-bit quantization.
 
 pub mod animation;
+pub mod preset;
 pub mod raster;
+pub mod rig;
 mod session;
+pub mod skin;
 pub mod target;
 
 pub use animation::AnimationParams;
+pub use preset::{PRESET_NAMES, Preset, preset, presets};
+pub use rig::{LensModel, RigParams};
 pub use session::{
     DETECTABLE_BORDER_PX, DotAppearance, SessionSummary, dot_appearance, render_session,
 };
+pub use skin::SkinParams;
 
 use std::path::PathBuf;
 
@@ -38,6 +44,7 @@ use crate::dataset::MarkerLayout;
 use crate::dataset::actor::Actor;
 use crate::mesh::Mesh;
 use crate::timecode::{Timecode, TimecodeRate};
+pub use crate::track::profile::Polarity;
 
 /// Errors of the synthesizer.
 #[derive(Debug, thiserror::Error)]
@@ -118,6 +125,81 @@ pub struct SynthParams {
     /// axis better than the antialiasing of one pixel row. For the default 2.4 mm dots at
     /// 225 mm (7.5 px across) this is a dot about 75° from facing the camera.
     pub detectable_min_minor_axis_px: f64,
+    /// Dark ink dots, or bright ones (retroreflective under the helmet's ring light).
+    /// Default dark.
+    pub polarity: Polarity,
+    /// Bright dots: radiance of a retroreflective dot facing the camera relative to a
+    /// white diffuse surface (it falls off with the square root of the cosine of the
+    /// entrance angle). Default 3 (saturates the sensor).
+    pub bright_dot_gain: f64,
+    /// Colour images (RGB PNG) with these colours; `None`: monochrome. Default none.
+    pub color: Option<ColorParams>,
+    /// Bits per sample of the written images. Default 8.
+    pub bit_depth: BitDepth,
+    /// Freckles, moles, hair, pores, sheen, flicker, boom shadow, worn dots. Default all
+    /// off.
+    pub skin: SkinParams,
+    /// Whether the session gets a capture profile (`profile.toml`, named in
+    /// `session.toml`). Default none.
+    pub profile: ProfileOutput,
+}
+
+/// Colours of a colour camera's view (linear RGB albedo, 0..1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColorParams {
+    /// Skin albedo. Default `[0.74, 0.58, 0.49]` (a light skin tone; luma about the grey
+    /// default's 0.62).
+    pub skin_rgb: [f64; 3],
+    /// Dot paint albedo (dark dots; bright dots are white under the ring light). Default
+    /// green `[0.08, 0.45, 0.16]`.
+    pub dot_rgb: [f64; 3],
+}
+
+impl Default for ColorParams {
+    fn default() -> Self {
+        Self {
+            skin_rgb: [0.74, 0.58, 0.49],
+            dot_rgb: [0.08, 0.45, 0.16],
+        }
+    }
+}
+
+/// Bits per sample of the written PNG images.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BitDepth {
+    /// 8-bit samples.
+    #[default]
+    Eight,
+    /// 12-bit sensor data in 16-bit words, shifted up by 4 bits (the low 4 bits zero), as
+    /// machine-vision cameras deliver it.
+    Twelve,
+    /// Full 16-bit samples.
+    Sixteen,
+}
+
+impl BitDepth {
+    /// Largest sample value of the sensor data (before any shift into 16-bit words).
+    pub fn max_value(self) -> u32 {
+        match self {
+            BitDepth::Eight => 255,
+            BitDepth::Twelve => 4095,
+            BitDepth::Sixteen => 65_535,
+        }
+    }
+}
+
+/// Whether and how a session's capture profile is written.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub enum ProfileOutput {
+    /// No profile.
+    #[default]
+    None,
+    /// A profile stating what a rig operator knows: dot diameter, polarity, colour, and
+    /// the range of distances from the cameras to the dots (from the neutral pose, with a
+    /// margin, rounded to 5 mm).
+    Generated,
+    /// This TOML text, as given (`synth --profile FILE`).
+    Text(String),
 }
 
 impl Default for SynthParams {
@@ -142,6 +224,12 @@ impl Default for SynthParams {
             timecode_start: "01:00:00:00".into(),
             timecode_rate: TimecodeRate::FPS_30,
             detectable_min_minor_axis_px: 2.0,
+            polarity: Polarity::Dark,
+            bright_dot_gain: 3.0,
+            color: None,
+            bit_depth: BitDepth::Eight,
+            skin: SkinParams::default(),
+            profile: ProfileOutput::None,
         }
     }
 }
@@ -188,7 +276,32 @@ impl SynthParams {
                 && self.detectable_min_minor_axis_px >= 0.0,
             "detectable_min_minor_axis_px",
         )?;
+        check(
+            self.bright_dot_gain.is_finite() && self.bright_dot_gain > 0.0,
+            "bright_dot_gain",
+        )?;
+        if let Some(c) = &self.color {
+            let ok = |v: &[f64; 3]| v.iter().all(|x| (0.0..=1.0).contains(x));
+            check(ok(&c.skin_rgb), "color.skin_rgb")?;
+            check(ok(&c.dot_rgb), "color.dot_rgb")?;
+        }
+        self.skin.validate()?;
         self.start_timecode().map(|_| ())
+    }
+
+    /// Colour channels of the images: 3 for colour, 1 for grey.
+    pub fn channels(&self) -> usize {
+        if self.color.is_some() { 3 } else { 1 }
+    }
+
+    /// Skin albedo as linear RGB (grey: the same value thrice).
+    pub fn skin_rgb(&self) -> [f64; 3] {
+        self.color.map_or([self.skin_albedo; 3], |c| c.skin_rgb)
+    }
+
+    /// Painted dot diameter, mm.
+    pub fn dot_diameter_mm(&self) -> f64 {
+        2.0 * self.marker_radius_mm
     }
 
     /// The timecode of frame 0.
@@ -347,12 +460,117 @@ pub(crate) struct Scene<'a> {
     pub markers: Vec<(Point3<f64>, Vector3<f64>)>,
     /// Eye centres in this camera's frame with the iris direction.
     pub eyes: Vec<(Point3<f64>, Vector3<f64>)>,
+    /// Rest (neutral) vertex positions, head frame: where the skin texture is looked up.
+    pub rest_positions: &'a [Point3<f64>],
+    /// Features, dot wear and texture on the skin.
+    pub skin: &'a skin::SkinLayout,
+    /// cam0 from this camera: the boom shadow is fixed to the helmet (cam0).
+    pub cam0_from_cam: IsometryMatrix3<f64>,
+    /// The boom shadow at this instant, if any.
+    pub shadow: Option<skin::ShadowBand>,
 }
 
-/// A rendered view: radiance per pixel (8-bit scale, float), plus the fragments.
+/// A rendered view: radiance per pixel and channel (8-bit scale, float; channels
+/// interleaved), plus the fragments.
 pub(crate) struct View {
     pub radiance: Vec<f32>,
     pub fragments: raster::Fragments,
+}
+
+/// A colour as stored in the albedo buffer: RGB, or its luma for grey images.
+fn albedo_of(rgb: [f64; 3], channels: usize) -> [f32; 3] {
+    if channels == 3 {
+        rgb.map(|x| x as f32)
+    } else {
+        [skin::luma(rgb) as f32; 3]
+    }
+}
+
+/// Calls `paint(i, p, n)` for every pixel `i` within `extent_mm` of the surface point
+/// `centre` (camera frame) whose surface is skin facing like `normal`, with its surface
+/// point `p`, normal `n` and pixel footprint in mm.
+fn for_skin_pixels(
+    scene: &Scene<'_>,
+    frags: &raster::Fragments,
+    centre: &Point3<f64>,
+    normal: &Vector3<f64>,
+    extent_mm: f64,
+    mut paint: impl FnMut(usize, &Point3<f64>, &Vector3<f64>, f64),
+) {
+    let cam = scene.camera;
+    let (w, h) = (frags.width, frags.height);
+    let Some(centre_px) = cam.project(&centre.coords) else {
+        return;
+    };
+    // Bounding box of the projected disc: rim points every 45° (the true extent is at
+    // most 1/cos 22.5° beyond them), plus 2 px for the antialiased edge.
+    let helper = if normal.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let t1 = normal.cross(&helper).normalize();
+    let t2 = normal.cross(&t1);
+    let reach = extent_mm / (std::f64::consts::FRAC_PI_8).cos();
+    let (mut lo, mut hi) = (centre_px, centre_px);
+    for k in 0..8 {
+        let phi = std::f64::consts::FRAC_PI_4 * f64::from(k);
+        let q = centre + (t1 * phi.cos() + t2 * phi.sin()) * reach;
+        match cam.project(&q.coords) {
+            Some(px) => {
+                lo = lo.inf(&px);
+                hi = hi.sup(&px);
+            }
+            None => {
+                // Behind the camera: fall back to a generous square.
+                let half = extent_mm / (centre.coords.norm() / cam.fx()) * 2.0;
+                lo = lo.inf(&(centre_px - nalgebra::Vector2::repeat(half)));
+                hi = hi.sup(&(centre_px + nalgebra::Vector2::repeat(half)));
+            }
+        }
+    }
+    let x0 = (lo.x - 2.0).floor().max(0.0) as usize;
+    let x1 = (hi.x + 2.0).ceil().min(w as f64 - 1.0);
+    let y0 = (lo.y - 2.0).floor().max(0.0) as usize;
+    let y1 = (hi.y + 2.0).ceil().min(h as f64 - 1.0);
+    if x1 < 0.0 || y1 < 0.0 {
+        return;
+    }
+    for y in y0..=y1 as usize {
+        for x in x0..=x1 as usize {
+            let i = y * w + x;
+            let Some((t, p, pn)) = frags.surface(
+                i,
+                scene.triangles,
+                &scene.points_in_cam,
+                &scene.normals_in_cam,
+            ) else {
+                continue;
+            };
+            if scene.triangle_material.get(t as usize) != Some(&0) || pn.dot(normal) < 0.5 {
+                continue;
+            }
+            let footprint = (p.coords.norm() / cam.fx()).max(1e-6);
+            paint(i, &p, &pn, footprint);
+        }
+    }
+}
+
+/// Distance from `p` to the polyline through `points`.
+fn polyline_distance(p: &Point3<f64>, points: &[Point3<f64>]) -> f64 {
+    points
+        .windows(2)
+        .map(|s| {
+            let ab = s[1] - s[0];
+            let len2 = ab.norm_squared();
+            let t = if len2 > 0.0 {
+                ((p - s[0]).dot(&ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (p - (s[0] + ab * t)).norm()
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// Renders one view without noise (see the module docs for the model).
@@ -365,51 +583,132 @@ pub(crate) fn shade(scene: &Scene<'_>, params: &SynthParams) -> View {
         .collect();
     let frags = raster::Fragments::rasterize(cam, &scene.points_in_cam, &pixels, scene.triangles);
     let (w, h) = (frags.width, frags.height);
-    let mut albedo = vec![params.skin_albedo as f32; w * h];
-    // Ink: each marker inks the skin pixels whose surface point is within its radius.
-    let r = params.marker_radius_mm;
-    for (c, n) in &scene.markers {
-        let Some(centre_px) = cam.project(&c.coords) else {
+    let ch = params.channels();
+    let mut albedo = if ch == 1 {
+        vec![params.skin_albedo as f32; w * h]
+    } else {
+        let s = albedo_of(params.skin_rgb(), 3);
+        (0..w * h).flat_map(|_| s).collect()
+    };
+    let mix = |albedo: &mut [f32], i: usize, target: &[f32; 3], amount: f32| {
+        for (k, a) in albedo[i * ch..(i + 1) * ch].iter_mut().enumerate() {
+            *a += (target[k] - *a) * amount;
+        }
+    };
+    let bright = params.polarity == Polarity::Bright;
+    let mut retro = if bright {
+        vec![0.0f32; w * h]
+    } else {
+        Vec::new()
+    };
+    // Freckles and moles lie under the paint.
+    for f in &scene.skin.features {
+        if f.kind == skin::FeatureKind::Hair {
+            continue;
+        }
+        let Some(at) = f.anchors.first() else {
             continue;
         };
-        let mm_per_px = c.coords.norm() / cam.fx();
-        let half = (r / mm_per_px * 2.0 + 3.0).ceil();
-        let x0 = (centre_px.x - half).floor().max(0.0) as usize;
-        let x1 = (centre_px.x + half).ceil().min(w as f64 - 1.0);
-        let y0 = (centre_px.y - half).floor().max(0.0) as usize;
-        let y1 = (centre_px.y + half).ceil().min(h as f64 - 1.0);
-        if x1 < 0.0 || y1 < 0.0 {
-            continue;
-        }
-        for y in y0..=y1 as usize {
-            for x in x0..=x1 as usize {
-                let i = y * w + x;
-                let Some((t, p, pn)) = frags.surface(
-                    i,
-                    scene.triangles,
-                    &scene.points_in_cam,
-                    &scene.normals_in_cam,
-                ) else {
-                    continue;
-                };
-                if scene.triangle_material.get(t as usize) != Some(&0) || pn.dot(n) < 0.5 {
-                    continue;
+        let c = at.locate(scene.triangles, &scene.points_in_cam);
+        let n = at.normal(scene.triangles, &scene.normals_in_cam);
+        let target = albedo_of(f.color, ch);
+        let extent = f.radius_mm + f.softness_mm;
+        for_skin_pixels(scene, &frags, &c, &n, extent, |i, p, _, footprint| {
+            let cov = skin::coverage((p - c).norm(), f.radius_mm, footprint, f.softness_mm);
+            if cov > 0.0 {
+                mix(&mut albedo, i, &target, (cov * f.opacity) as f32);
+            }
+        });
+    }
+    // Ink: each marker inks the skin pixels whose surface point is within its radius
+    // (within the smear's ellipse for a smudged dot).
+    let r = params.marker_radius_mm;
+    let ink = match params.color {
+        Some(c) => albedo_of(c.dot_rgb, 3),
+        None => [params.ink_albedo as f32; 3],
+    };
+    for (k, (c, n)) in scene.markers.iter().enumerate() {
+        let wear = scene
+            .skin
+            .wear
+            .get(k)
+            .copied()
+            .unwrap_or(skin::DotWear::Intact);
+        // Smear axes: e1 along the smear (semi-axis r·stretch), e2 across (r/√stretch).
+        let smear = match wear {
+            skin::DotWear::Wiped => continue,
+            skin::DotWear::Intact => None,
+            skin::DotWear::Smudged {
+                toward,
+                stretch,
+                opacity,
+            } => {
+                let q = toward.locate(scene.triangles, &scene.points_in_cam);
+                let d = q - c;
+                let e1 = (d - n * n.dot(&d)).try_normalize(1e-9);
+                e1.map(|e1| (e1, n.cross(&e1), r * stretch, r / stretch.sqrt(), opacity))
+            }
+        };
+        let extent = smear.map_or(r, |s| s.2);
+        for_skin_pixels(scene, &frags, c, n, extent, |i, p, _, footprint| {
+            let (coverage, density) = match smear {
+                None => {
+                    let d = (p - c).norm();
+                    (((r - d) / footprint + 0.5).clamp(0.0, 1.0), 1.0)
                 }
-                let d = (p - c).norm();
-                let footprint = (p.coords.norm() / cam.fx()).max(1e-6);
-                let coverage = ((r - d) / footprint + 0.5).clamp(0.0, 1.0) as f32;
-                if coverage > 0.0 {
+                Some((e1, e2, a, b, opacity)) => {
+                    let dp = p - c;
+                    let rho = ((dp.dot(&e1) / a).powi(2)
+                        + (dp.dot(&e2) / b).powi(2)
+                        + (dp.dot(n) / b).powi(2))
+                    .sqrt();
+                    (((1.0 - rho) * b / footprint + 0.5).clamp(0.0, 1.0), opacity)
+                }
+            };
+            if coverage > 0.0 {
+                if bright {
+                    retro[i] = retro[i].max((coverage * density) as f32);
+                } else if smear.is_none() && ch == 1 {
                     let a = albedo[i];
-                    albedo[i] = a + (params.ink_albedo as f32 - a) * coverage;
+                    albedo[i] = a + (ink[0] - a) * coverage as f32;
+                } else {
+                    mix(&mut albedo, i, &ink, (coverage * density) as f32);
                 }
             }
-        }
+        });
     }
-    let mut radiance = vec![0.0f32; w * h];
+    // Hair lies on top of the paint.
+    for f in &scene.skin.features {
+        if f.kind != skin::FeatureKind::Hair || f.anchors.len() < 2 {
+            continue;
+        }
+        let pts: Vec<Point3<f64>> = f
+            .anchors
+            .iter()
+            .map(|a| a.locate(scene.triangles, &scene.points_in_cam))
+            .collect();
+        let mid = pts[pts.len() / 2];
+        let n = f.anchors[f.anchors.len() / 2].normal(scene.triangles, &scene.normals_in_cam);
+        let extent = pts.iter().map(|q| (q - mid).norm()).fold(0.0, f64::max) + f.radius_mm;
+        let target = albedo_of(f.color, ch);
+        for_skin_pixels(scene, &frags, &mid, &n, extent, |i, p, _, footprint| {
+            let d = polyline_distance(p, &pts);
+            let cov = skin::coverage(d, f.radius_mm, footprint, 0.0) * f.opacity;
+            if cov > 0.0 {
+                mix(&mut albedo, i, &target, cov as f32);
+                if bright {
+                    retro[i] *= 1.0 - cov as f32;
+                }
+            }
+        });
+    }
+    let mut radiance = vec![0.0f32; w * h * ch];
     let cx = cam.k[(0, 2)];
     let cy = cam.k[(1, 2)];
     let diag = (cx * cx + cy * cy).sqrt();
-    for (i, out) in radiance.iter_mut().enumerate() {
+    let texture = scene.skin.texture.as_ref();
+    let sheen = params.skin.sheen;
+    for (i, out) in radiance.chunks_exact_mut(ch).enumerate() {
         let Some((t, p, n)) = frags.surface(
             i,
             scene.triangles,
@@ -421,40 +720,115 @@ pub(crate) fn shade(scene: &Scene<'_>, params: &SynthParams) -> View {
         let dist = p.coords.norm();
         let l = -p.coords / dist;
         let ndl = n.dot(&l);
-        let mut a = f64::from(albedo[i]);
-        if scene.triangle_material.get(t as usize) == Some(&1) {
+        let mut a = [0.0f64; 3];
+        for (k, v) in a.iter_mut().take(ch).enumerate() {
+            *v = f64::from(albedo[i * ch + k]);
+        }
+        let eyeball = scene.triangle_material.get(t as usize) == Some(&1);
+        if eyeball {
             // Eyeball: white sclera, dark iris toward the front.
-            a = 0.8;
+            let mut e = 0.8;
             for (ec, dir) in &scene.eyes {
                 let v = (p - ec).normalize();
                 let cos = v.dot(dir);
                 if cos > 0.95 {
-                    a = 0.03;
+                    e = 0.03;
                 } else if cos > 0.85 {
-                    a = 0.25;
+                    e = 0.25;
                 }
             }
+            a = [e; 3];
         }
-        let value = if ndl <= 0.0 {
-            // The inside of the head seen through the mouth, or a grazing back face.
-            0.02
-        } else {
-            let d0 = params.face_distance_mm;
-            let falloff = (d0 / dist).powi(2);
-            let diffuse = a * (params.ambient + (1.0 - params.ambient) * ndl);
-            // Blinn-Phong with the light at the camera: half vector = view vector.
-            let spec = params.specular * ndl.powi(60);
-            (diffuse + spec) * falloff
+        // Skin texture, and wet highlights where the skin is wet.
+        let mut wet_spec = 0.0;
+        if let (Some(tex), false) = (texture, eyeball) {
+            let rest = frags.rest_point(i, scene.triangles, scene.rest_positions);
+            let factor = f64::from(tex.albedo_factor(&rest));
+            a.iter_mut().for_each(|v| *v *= factor);
+            if sheen > 0.0 && ndl > 0.0 {
+                wet_spec =
+                    sheen * f64::from(tex.wetness(&rest)) * ndl.powf(params.skin.sheen_exponent);
+            }
+        }
+        let vignette_at = || {
+            let x = (i % w) as f64 - cx;
+            let y = (i / w) as f64 - cy;
+            1.0 - 0.35 * ((x * x + y * y) / (diag * diag))
         };
+        if ndl <= 0.0 {
+            // The inside of the head seen through the mouth, or a grazing back face.
+            let value = 0.02 * vignette_at() * params.exposure_dn;
+            out.iter_mut().for_each(|o| *o = value as f32);
+            continue;
+        }
+        let d0 = params.face_distance_mm;
+        let falloff = (d0 / dist).powi(2);
+        let direct = match &scene.shadow {
+            Some(s) => (1.0 - params.ambient) * ndl * s.direct_light(&(scene.cam0_from_cam * p)),
+            None => (1.0 - params.ambient) * ndl,
+        };
+        // Blinn-Phong with the light at the camera: half vector = view vector.
+        let spec = params.specular * ndl.powi(60) + wet_spec;
         // cos⁴-like vignette of a wide lens, by distance from the principal point.
-        let x = (i % w) as f64 - cx;
-        let y = (i / w) as f64 - cy;
-        let vignette = 1.0 - 0.35 * ((x * x + y * y) / (diag * diag));
-        *out = (value * vignette * params.exposure_dn) as f32;
+        let vignette = vignette_at();
+        let cover = if bright { f64::from(retro[i]) } else { 0.0 };
+        for (k, o) in out.iter_mut().enumerate() {
+            let diffuse = a[k] * (params.ambient + direct);
+            let mut value = (diffuse + spec) * falloff;
+            if cover > 0.0 {
+                // A retroreflective dot returns the ring light to the camera.
+                let r = params.bright_dot_gain * ndl.sqrt() * falloff;
+                value = value * (1.0 - cover) + r * cover;
+            }
+            *o = (value * vignette * params.exposure_dn) as f32;
+        }
     }
     View {
         radiance,
         fragments: frags,
+    }
+}
+
+/// The shared table of 65 536 standard normal samples (Box-Muller, fixed seed).
+fn normal_table() -> &'static [f32] {
+    static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut rng = StdRng::seed_from_u64(0x006e_6f69_7365);
+        (0..1 << 16).map(|_| normal(&mut rng) as f32).collect()
+    })
+}
+
+/// Standard normal samples, one per index, from [`normal_table`] indexed by a seeded
+/// xorshift64* generator (16 bits per sample, four per draw).
+struct NoiseStream {
+    state: u64,
+    bits: u64,
+    table: &'static [f32],
+}
+
+impl NoiseStream {
+    fn new(seed: u64) -> Self {
+        let mut state = seed ^ 0x2545_f491_4f6c_dd1d;
+        if state == 0 {
+            state = 1;
+        }
+        Self {
+            state,
+            bits: 0,
+            table: normal_table(),
+        }
+    }
+
+    /// The sample for index `i` (indices must come in order from 0).
+    fn sample(&mut self, i: usize) -> f32 {
+        if i % 4 == 0 {
+            // xorshift64*
+            self.state ^= self.state >> 12;
+            self.state ^= self.state << 25;
+            self.state ^= self.state >> 27;
+            self.bits = self.state.wrapping_mul(0x2545_f491_4f6c_dd1d);
+        }
+        self.table[((self.bits >> (16 * (i % 4))) & 0xffff) as usize]
     }
 }
 
@@ -463,29 +837,33 @@ pub(crate) fn shade(scene: &Scene<'_>, params: &SynthParams) -> View {
 /// generator, which is ~20× faster than drawing each sample and statistically the same for
 /// pixel noise.
 pub(crate) fn to_gray8(radiance: &[f32], noise_dn: f64, seed: u64) -> Vec<u8> {
-    static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
-    let table = TABLE.get_or_init(|| {
-        let mut rng = StdRng::seed_from_u64(0x006e_6f69_7365);
-        (0..1 << 16).map(|_| normal(&mut rng) as f32).collect()
-    });
-    let mut state = seed ^ 0x2545_f491_4f6c_dd1d;
-    if state == 0 {
-        state = 1;
-    }
-    let mut bits = 0u64;
+    let mut noise = NoiseStream::new(seed);
     radiance
         .iter()
         .enumerate()
         .map(|(i, &v)| {
-            if i % 4 == 0 {
-                // xorshift64*
-                state ^= state >> 12;
-                state ^= state << 25;
-                state ^= state >> 27;
-                bits = state.wrapping_mul(0x2545_f491_4f6c_dd1d);
-            }
-            let n = table[((bits >> (16 * (i % 4))) & 0xffff) as usize];
+            let n = noise.sample(i);
             (v + noise_dn as f32 * n).round().clamp(0.0, 255.0) as u8
+        })
+        .collect()
+}
+
+/// Adds sensor noise (`noise_dn` in 8-bit levels, scaled with the signal) and quantizes
+/// radiance on the 8-bit scale to `depth`'s range, as 16-bit words: 12-bit data shifted
+/// up by 4 bits, or full 16-bit samples.
+pub(crate) fn to_u16(radiance: &[f32], noise_dn: f64, seed: u64, depth: BitDepth) -> Vec<u16> {
+    let max = depth.max_value() as f32;
+    let scale = max / 255.0;
+    let shift = if depth == BitDepth::Twelve { 4 } else { 0 };
+    let sigma = noise_dn as f32 * scale;
+    let mut noise = NoiseStream::new(seed);
+    radiance
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            let n = noise.sample(i);
+            let q = (v * scale + sigma * n).round().clamp(0.0, max) as u16;
+            q << shift
         })
         .collect()
 }
@@ -495,6 +873,14 @@ fn normal(rng: &mut impl rand::Rng) -> f64 {
     let u1: f64 = rng.random_range(f64::EPSILON..1.0);
     let u2: f64 = rng.random();
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// Samples of an image to write.
+pub enum Samples<'a> {
+    /// 8-bit samples.
+    Eight(&'a [u8]),
+    /// 16-bit samples.
+    Sixteen(&'a [u16]),
 }
 
 /// Writes an 8-bit grayscale PNG.
@@ -507,22 +893,57 @@ pub fn write_png_gray(
     height: u32,
     pixels: &[u8],
 ) -> Result<(), SynthError> {
+    write_png(path, width, height, 1, Samples::Eight(pixels))
+}
+
+/// Writes a grey (`channels` 1) or RGB (3, interleaved) PNG of 8 or 16 bits per sample.
+///
+/// # Errors
+/// [`SynthError::Write`] naming the file, also when the sample count does not match.
+pub fn write_png(
+    path: &std::path::Path,
+    width: u32,
+    height: u32,
+    channels: usize,
+    samples: Samples<'_>,
+) -> Result<(), SynthError> {
     let err = |message: String| SynthError::Write {
         path: path.to_path_buf(),
         message,
     };
+    let expected = width as usize * height as usize * channels;
+    let (len, depth) = match samples {
+        Samples::Eight(s) => (s.len(), png::BitDepth::Eight),
+        Samples::Sixteen(s) => (s.len(), png::BitDepth::Sixteen),
+    };
+    if len != expected {
+        return Err(err(format!(
+            "{len} samples for a {width}x{height}x{channels} image"
+        )));
+    }
+    let color = match channels {
+        1 => png::ColorType::Grayscale,
+        3 => png::ColorType::Rgb,
+        _ => return Err(err(format!("{channels} channels (1 or 3 supported)"))),
+    };
     let file = std::fs::File::create(path).map_err(|e| err(e.to_string()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width, height);
-    enc.set_color(png::ColorType::Grayscale);
-    enc.set_depth(png::BitDepth::Eight);
+    enc.set_color(color);
+    enc.set_depth(depth);
     enc.set_compression(png::Compression::Fast);
     // The "up" filter for every row: replay decodes it several times faster than the
     // adaptive choice (mostly Paeth on camera noise), for files a few percent larger.
     enc.set_filter(png::Filter::Up);
     let mut writer = enc.write_header().map_err(|e| err(e.to_string()))?;
-    writer
-        .write_image_data(pixels)
-        .map_err(|e| err(e.to_string()))?;
+    match samples {
+        Samples::Eight(s) => writer.write_image_data(s),
+        Samples::Sixteen(s) => {
+            // PNG stores 16-bit samples big-endian.
+            let bytes: Vec<u8> = s.iter().flat_map(|v| v.to_be_bytes()).collect();
+            writer.write_image_data(&bytes)
+        }
+    }
+    .map_err(|e| err(e.to_string()))?;
     writer.finish().map_err(|e| err(e.to_string()))
 }
 

@@ -109,6 +109,31 @@ impl Fragments {
         }
         Some((t, Point3::from(p), n.try_normalize(1e-12).unwrap_or(n)))
     }
+    /// The point at pixel `i` on the mesh with vertex positions `positions` (for example
+    /// the rest pose: where a skin texture is looked up); the origin where no triangle
+    /// was drawn.
+    pub fn rest_point(
+        &self,
+        i: usize,
+        triangles: &[[u32; 3]],
+        positions: &[Point3<f64>],
+    ) -> Point3<f64> {
+        let (Some(&t), Some(bary)) = (self.triangle.get(i), self.bary.get(i)) else {
+            return Point3::origin();
+        };
+        let Some(tri) = triangles.get(t as usize) else {
+            return Point3::origin();
+        };
+        let [b1, b2] = bary.map(f64::from);
+        let b = [1.0 - b1 - b2, b1, b2];
+        let mut p = Vector3::zeros();
+        for (k, &v) in tri.iter().enumerate() {
+            if let Some(q) = positions.get(v as usize) {
+                p += q.coords * b[k];
+            }
+        }
+        Point3::from(p)
+    }
 }
 
 /// Separable Gaussian blur of a float image (σ in pixels; no-op for σ ≤ 0).
