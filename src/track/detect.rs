@@ -345,12 +345,29 @@ impl MarkerDetector {
         self.threshold(image, &scaled, large, roi);
         self.components(image, &scaled, roi, &mut coarse, None);
         let limit = small_scale_limit_px(small);
-        coarse.retain(|d| d.diameter_px > limit);
-        fine.retain(|f| {
-            !coarse
-                .iter()
-                .any(|c| (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0)
+        let inside = |c: &Detection, f: &Detection| {
+            (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
+        };
+        // A large dot is one round blob: it holds at most one of the small scale's blobs
+        // (its ring). A large blob around several small ones is a patch of skin with dots
+        // in it (an eyebrow, the shading beside the nose), not a dot.
+        // When it holds one, the two are the same dot only if they share the centre (a
+        // small dot merged with a shadow in the large window makes a large blob around it
+        // whose centre is off).
+        coarse.retain(|c| {
+            if !(c.diameter_px > limit && c.roundness >= COARSE_MIN_ROUNDNESS) {
+                return false;
+            }
+            let mut held = fine.iter().filter(|f| inside(c, f));
+            match (held.next(), held.next()) {
+                (None, _) => true,
+                (Some(f), None) => {
+                    (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
+                }
+                (Some(_), Some(_)) => false,
+            }
         });
+        fine.retain(|f| !coarse.iter().any(|c| inside(c, f)));
         fine.extend(coarse);
         fine
     }
@@ -565,6 +582,10 @@ fn all_zero(bytes: &[u8]) -> bool {
 pub fn small_scale_limit_px(r: usize) -> f64 {
     0.87 * (2 * r + 1) as f64
 }
+
+/// Smallest roundness of a blob of the large window scale: a large dot seen up to about 60°
+/// from its normal (more slanted, it is narrow enough for the small scale).
+const COARSE_MIN_ROUNDNESS: f64 = 0.5;
 
 /// Largest component kept whole for splitting, pixels.
 const MAX_COMPONENT_PX: usize = 20_000;
