@@ -90,7 +90,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let profile =
         super::replay::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
     let detect_params = profile.detect_params(Some(&rig));
-    let label_params = profile.label.clone();
+    let label_params = profile.label_params();
     let frames: Vec<StereoFrame> = replay.collect::<Result<_, _>>()?;
     anyhow::ensure!(!frames.is_empty(), "the session has no frames");
     let neutral: Vec<Point3<f64>> = layout

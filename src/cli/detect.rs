@@ -89,7 +89,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 args.markers.as_deref(),
             )?;
             names = layout.markers.iter().map(|m| m.name.clone()).collect();
-            let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label.clone())?;
+            let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label_params())?;
             Some(labeler.process(0, [&results[0].dots, &results[1].dots]))
         }
         _ => None,

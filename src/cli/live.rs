@@ -173,7 +173,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         .context("the live config names no calibration (`calibration = ...`)")?;
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.detect = profile.detect_params(Some(&config.rig));
-    config.label = profile.label.clone();
+    config.label = profile.label_params();
     config.channel_capacity = args.queue;
     config.name = "live".into();
     config.timecode_rate = Some(source.timecode_rate());

@@ -232,7 +232,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let profile = load_profile(args.profile.as_deref().or(info.profile.as_deref()))?;
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.detect = profile.detect_params(Some(&config.rig));
-    config.label = profile.label.clone();
+    config.label = profile.label_params();
     config.channel_capacity = args.queue;
     config.name = args
         .session

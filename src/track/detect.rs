@@ -338,9 +338,17 @@ impl MarkerDetector {
     ) -> Vec<Detection> {
         let (small, large) = (scales[0], scales[scales.len() - 1]);
         let scaled = params.scaled_to_dot_sizes();
+        // The small scale measures blobs up to its own limit (larger ones are the large
+        // scale's), but foreshortened dots of any size in the range: a large dot seen edge-on
+        // is a thin ellipse the large window does not take (it keeps round blobs only).
+        let fine_params = DetectParams {
+            elongated_max_length_px: scaled.elongated_max_length_px,
+            min_area_px: scaled.min_area_px,
+            ..params.clone()
+        };
         let mut fine = Vec::new();
-        self.threshold(image, params, small, roi);
-        self.components(image, params, roi, &mut fine, rejected.as_deref_mut());
+        self.threshold(image, &fine_params, small, roi);
+        self.components(image, &fine_params, roi, &mut fine, rejected.as_deref_mut());
         let mut coarse = Vec::new();
         self.threshold(image, &scaled, large, roi);
         self.components(image, &scaled, roi, &mut coarse, None);

@@ -90,6 +90,9 @@ pub struct CaptureProfile {
     /// Whether `[detect]` set the dot size range itself (then it is not derived).
     #[serde(skip)]
     dot_size_given: bool,
+    /// Whether `[label.pair.triangulate]` set the depth range itself.
+    #[serde(skip)]
+    depth_range_given: bool,
 }
 
 impl Default for CaptureProfile {
@@ -103,6 +106,7 @@ impl Default for CaptureProfile {
             detect: DetectParams::default(),
             label: LabelParams::default(),
             dot_size_given: false,
+            depth_range_given: false,
         }
     }
 }
@@ -144,6 +148,21 @@ impl CaptureProfile {
             .get("detect")
             .and_then(|d| d.as_table())
             .is_some_and(|d| d.contains_key("min_dot_px") || d.contains_key("max_dot_px"));
+        profile.depth_range_given = table
+            .get("label")
+            .and_then(|l| l.get("pair"))
+            .and_then(|p| p.get("triangulate"))
+            .and_then(|t| t.as_table())
+            .is_some_and(|t| t.contains_key("depth_range_mm"));
+        if table
+            .get("label")
+            .and_then(|d| d.as_table())
+            .is_some_and(|d| d.contains_key("dot_diameter_mm"))
+        {
+            return Err(invalid(
+                "[label] dot_diameter_mm: set `dot_diameter_mm` at the top level instead".into(),
+            ));
+        }
         if table
             .get("detect")
             .and_then(|d| d.as_table())
@@ -201,6 +220,20 @@ impl CaptureProfile {
             (None, Some(Channel::Blue)) => GrayConversion::Channel(2),
             (None, None) => GrayConversion::Luma,
         }
+    }
+
+    /// The labeling settings: `[label]` with the profile's dot diameter, and, unless
+    /// `[label.pair.triangulate]` sets it, a triangulation depth range from the camera
+    /// distances (from 0.3 × the nearest, for dots far off the axis of a wide lens, to
+    /// 2 × the farthest).
+    pub fn label_params(&self) -> LabelParams {
+        let mut p = self.label.clone();
+        p.dot_diameter_mm = self.dot_diameter_mm;
+        if !self.depth_range_given {
+            let (near, far) = self.camera_distance_mm;
+            p.pair.triangulate.depth_range_mm = (0.3 * near, 2.0 * far);
+        }
+        p
     }
 
     /// The detection settings for a rig: polarity from the profile (a dot colour makes
