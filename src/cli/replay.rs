@@ -198,6 +198,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         ReplayParams {
             skip_bad_frames: args.skip_bad_frames,
             calibration: args.calib.clone(),
+            ..ReplayParams::default()
         },
     )
     .with_context(|| format!("opening session {}", args.session.display()))?;
