@@ -453,7 +453,7 @@ fn bad_videos_get_one_clear_error_line() {
     assert!(!dir.join("ingested").exists());
     // Another frame rate.
     write_video(&png.join("cam1"), &s.join("cam1.mkv"), 30.0, None);
-    replay_err(&["cam1.mkv", "30 fps", "fps = 60"]);
+    replay_err(&["cam1.mkv", "30 fps", "same frame rate"]);
     // A camera the [video] table does not name.
     write_video(&png.join("cam1"), &s.join("cam1.mkv"), 60.0, None);
     std::fs::write(s.join("session.toml"), toml.replace("cam1 = ", "camX = ")).unwrap();
