@@ -338,7 +338,7 @@ fn opencv_jpeg_stereo_samples_calibrate_as_shipped() {
     );
     let rig = read_rig(&out).unwrap();
     assert_eq!((rig.cam0.width_px, rig.cam0.height_px), (640, 480));
-    // The samples' boards are 25 mm apart... in squares: the baseline is about 3.3 squares.
+    // The square size is arbitrary (25 mm here); the cameras are about 3.3 squares apart.
     let baseline_squares = rig.baseline_mm() / 25.0;
     assert!(
         (2.5..4.5).contains(&baseline_squares),
