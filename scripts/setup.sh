@@ -4,8 +4,10 @@
 # (1.85 or newer) when none is found. Safe to run again: it installs only what is missing.
 set -euo pipefail
 
+# opencv-doc: OpenCV's stereo sample images (left01..14.jpg, right01..14.jpg) that the
+# calibration tests use; ffmpeg: ffprobe reads video timecode tracks (tests write one).
 packages=(build-essential pkg-config curl ca-certificates clang libclang-dev libopencv-dev
-          libv4l-dev libudev-dev)
+          libv4l-dev libudev-dev opencv-doc ffmpeg)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then

@@ -282,3 +282,66 @@ fn bad_input_gets_one_clear_error() {
     );
     assert!(!dir.join("rig.yaml").exists(), "no output on error");
 }
+
+/// The folder holding OpenCV's stereo sample images (Debian's `opencv-doc`), if installed.
+fn opencv_stereo_samples() -> Option<std::path::PathBuf> {
+    let listed = Command::new("dpkg")
+        .args(["-L", "opencv-doc"])
+        .output()
+        .ok()
+        .and_then(|o| {
+            String::from_utf8_lossy(&o.stdout)
+                .lines()
+                .find(|l| l.ends_with("/left01.jpg"))
+                .map(|l| Path::new(l).parent().unwrap().to_path_buf())
+        });
+    listed
+        .or_else(|| Some("/usr/share/doc/opencv-doc/examples/data".into()))
+        .filter(|d: &std::path::PathBuf| d.join("left01.jpg").is_file())
+}
+
+/// OpenCV's own stereo samples (JPEG, 640×480, 9×6 inner corners), as they ship: the
+/// pinhole calibration's stereo RMS is at or below the 0.447 px OpenCV's stereo_calib
+/// sample reports on them.
+#[test]
+fn opencv_jpeg_stereo_samples_calibrate_as_shipped() {
+    let Some(data) = opencv_stereo_samples() else {
+        println!("skipped: opencv-doc is not installed (scripts/setup.sh installs it)");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("rig.yaml");
+    let run = helmcap(&[
+        "calibrate",
+        "--target",
+        "chessboard:9x6:25",
+        "--model",
+        "pinhole",
+        "--cam0",
+        &format!("{}/left[0-9]*.jpg", data.display()),
+        "--cam1",
+        &format!("{}/right[0-9]*.jpg", data.display()),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    println!("{stdout}");
+    let [rms0, rms1, stereo] = printed_rms(&stdout);
+    assert!(
+        stereo <= 0.447,
+        "stereo RMS {stereo} px (cam0 {rms0}, cam1 {rms1})"
+    );
+    let rig = read_rig(&out).unwrap();
+    assert_eq!((rig.cam0.width_px, rig.cam0.height_px), (640, 480));
+    // The square size is arbitrary (25 mm here); the cameras are about 3.3 squares apart.
+    let baseline_squares = rig.baseline_mm() / 25.0;
+    assert!(
+        (2.5..4.5).contains(&baseline_squares),
+        "baseline {baseline_squares} squares"
+    );
+}

@@ -42,7 +42,7 @@ use super::syncbox::{
     SyncBox, SyncBoxConfig, SyncCounters, SyncHealth, TimecodeAnchor, stamp_from_anchor,
     time_of_day_timecode,
 };
-use super::{CaptureError, FrameSource, GrayImage, StereoFrame, read_png_gray};
+use super::{CaptureError, FrameSource, GrayConversion, GrayImage, StereoFrame, read_gray};
 use crate::camera::StereoRig;
 use crate::timecode::{Timecode, TimecodeRate};
 
@@ -333,10 +333,11 @@ impl TestCamera {
 
     fn image(&self, frame: usize) -> Result<GrayImage, CameraError> {
         match &self.images {
-            TestImages::Session { root, camera, .. } => {
-                read_png_gray(&root.join(camera).join(format!("{frame:06}.png")))
-                    .map_err(CameraError::BadFrame)
-            }
+            TestImages::Session { root, camera, .. } => read_gray(
+                &root.join(camera).join(format!("{frame:06}.png")),
+                GrayConversion::Luma,
+            )
+            .map_err(|e| CameraError::BadFrame(e.to_string())),
             TestImages::Pattern {
                 width,
                 height,

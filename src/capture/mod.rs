@@ -12,8 +12,12 @@ pub mod live;
 pub mod recorder;
 mod replay;
 pub mod syncbox;
+pub mod video;
 
-pub use image::{GrayConversion, GrayImage, read_png_gray};
+pub use image::{
+    GrayConversion, GrayImage, ImageReadError, MAX_IMAGE_BYTES, MAX_IMAGE_SIDE_PX, decode_gray,
+    read_gray, read_png_gray,
+};
 pub use live::{LiveConfig, LiveFrame, LiveSource, LiveStats, StampClock};
 pub use recorder::{RecordReport, Recorder, RecorderParams};
 pub use replay::{Replay, ReplayParams, ReplayStats, SessionInfo, StereoFrame};
@@ -108,6 +112,21 @@ pub enum CaptureError {
         expected_width: u32,
         /// Expected height.
         expected_height: u32,
+    },
+    /// A video of the session ended before the frame (shorter than its container
+    /// declares); no later frame can be read either.
+    #[error(
+        "frame {frame}: {path}: the video ended after {decoded} frames (it declares {declared})"
+    )]
+    VideoEnded {
+        /// Frame index.
+        frame: usize,
+        /// The video file.
+        path: PathBuf,
+        /// Frames decoded before the end.
+        decoded: usize,
+        /// Frames the container declares.
+        declared: usize,
     },
     /// A frame's image is missing.
     #[error("frame {frame}: missing image {path}")]

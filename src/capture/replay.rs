@@ -1,10 +1,13 @@
-//! Replay of a recorded session folder.
+//! Replay of a recorded session folder: image folders (`<camera>/NNNNNN.png`, any format
+//! [`read_gray`] reads) or one video file per camera (`[video]` in `session.toml`).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::{CaptureError, GrayImage, read_png_gray};
+use super::video::{VideoReader, probe_timecode};
+use super::{CaptureError, GrayConversion, GrayImage, read_gray};
 use crate::camera::{StereoRig, read_rig};
-use crate::timecode::{Timecode, TimecodeRate};
+use crate::timecode::{Timecode, TimecodeClock, TimecodeRate};
 
 /// Replay settings.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -15,6 +18,9 @@ pub struct ReplayParams {
     pub skip_bad_frames: bool,
     /// Calibration to use instead of the one `session.toml` names.
     pub calibration: Option<PathBuf>,
+    /// How colour frames become grey (the capture profile's choice). Default Rec. 601
+    /// luma.
+    pub gray_conversion: GrayConversion,
 }
 
 /// The session description (`session.toml` + `frames.csv`).
@@ -30,10 +36,14 @@ pub struct SessionInfo {
     /// a standard one, drop-frame when the labels use `;`).
     pub timecode_rate: Option<TimecodeRate>,
     /// Per frame: index, timestamp (ns) and timecode (None where `frames.csv` has none).
+    /// For a video session without `frames.csv` the timestamps here are nominal
+    /// (`index / fps`); the frames delivered carry the container's.
     pub frames: Vec<(usize, u64, Option<Timecode>)>,
     /// The capture profile `session.toml` names (`profile = "..."`, relative to the
     /// session folder), if any.
     pub profile: Option<PathBuf>,
+    /// The video files of the stereo pair (cam0, cam1) for a video session.
+    pub videos: Option<[PathBuf; 2]>,
 }
 
 /// One stereo frame.
@@ -65,11 +75,26 @@ struct SessionToml {
     calibration: Option<String>,
     timecode: Option<TimecodeToml>,
     profile: Option<String>,
+    video: Option<BTreeMap<String, String>>,
 }
 
 #[derive(serde::Deserialize)]
 struct TimecodeToml {
     rate: Option<TimecodeRate>,
+    start: Option<String>,
+}
+
+/// Where the frames come from.
+#[derive(Debug)]
+enum Media {
+    /// `<camera>/NNNNNN.png` files.
+    Images,
+    /// One video per camera of the pair; `container_timestamps`: the frames' timestamps
+    /// are the containers' (no `frames.csv`).
+    Videos {
+        readers: Box<[VideoReader; 2]>,
+        container_timestamps: bool,
+    },
 }
 
 /// Reads a recording session frame by frame. Iterate with [`Replay::next_frame`] (or as an
@@ -79,6 +104,7 @@ pub struct Replay {
     info: SessionInfo,
     rig: Option<StereoRig>,
     params: ReplayParams,
+    media: Media,
     next: usize,
     stats: ReplayStats,
 }
@@ -90,10 +116,167 @@ fn io_err(path: &Path, e: impl std::fmt::Display) -> CaptureError {
     }
 }
 
+/// Parses `frames.csv`; fills `timecode_rate` from the first timecode when it is unset.
+fn read_frames_csv(
+    frames_path: &Path,
+    fps: f64,
+    timecode_rate: &mut Option<TimecodeRate>,
+) -> Result<Vec<(usize, u64, Option<Timecode>)>, CaptureError> {
+    let frames_text = std::fs::read_to_string(frames_path).map_err(|e| io_err(frames_path, e))?;
+    let ferr = |line: usize, message: String| CaptureError::Format {
+        path: frames_path.to_path_buf(),
+        line,
+        message,
+    };
+    let mut lines = frames_text.lines().enumerate();
+    match lines.next() {
+        Some((_, h)) if h.trim().starts_with("frame,timestamp_ns,timecode") => {}
+        _ => {
+            return Err(ferr(
+                1,
+                "header must be `frame,timestamp_ns,timecode`".into(),
+            ));
+        }
+    }
+    let mut frames: Vec<(usize, u64, Option<Timecode>)> = Vec::new();
+    for (i, line) in lines {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() < 2 {
+            return Err(ferr(i + 1, "expected frame,timestamp_ns,timecode".into()));
+        }
+        let index: usize = f[0]
+            .parse()
+            .map_err(|_| ferr(i + 1, format!("frame {:?} is not a whole number", f[0])))?;
+        let ts: u64 = f[1]
+            .parse()
+            .map_err(|_| ferr(i + 1, format!("timestamp {:?} is not a whole number", f[1])))?;
+        if let Some((prev, prev_ts, _)) = frames.last()
+            && (index <= *prev || ts < *prev_ts)
+        {
+            return Err(ferr(i + 1, format!("frame {index} is out of order")));
+        }
+        let label = f.get(2).copied().unwrap_or("");
+        let timecode = if label.is_empty() {
+            None
+        } else {
+            let rate = match *timecode_rate {
+                Some(r) => r,
+                None => {
+                    let r = rate_for_label(fps, label).ok_or_else(|| {
+                        ferr(
+                            i + 1,
+                            "session.toml needs `[timecode] rate` to read timecodes".into(),
+                        )
+                    })?;
+                    *timecode_rate = Some(r);
+                    r
+                }
+            };
+            Some(Timecode::parse_at(label, rate).map_err(|e| ferr(i + 1, e.to_string()))?)
+        };
+        frames.push((index, ts, timecode));
+    }
+    if frames.is_empty() {
+        return Err(ferr(2, "no frames".into()));
+    }
+    Ok(frames)
+}
+
+/// The timecode rate of a label at camera rate `fps` (when that is a standard rate):
+/// drop-frame when the label uses `;`.
+fn rate_for_label(fps: f64, label: &str) -> Option<TimecodeRate> {
+    let r = TimecodeRate::from_fps(fps)?;
+    TimecodeRate::new(r.nominal, r.ntsc, label.contains(';') && r.ntsc).ok()
+}
+
+/// Reads one image of a frame and checks its size against the calibration.
+fn load_image(
+    root: &Path,
+    camera: &str,
+    index: usize,
+    rig: Option<&StereoRig>,
+    conversion: GrayConversion,
+) -> Result<GrayImage, CaptureError> {
+    let path = root.join(camera).join(format!("{index:06}.png"));
+    if !path.is_file() {
+        return Err(CaptureError::MissingImage { frame: index, path });
+    }
+    let img = read_gray(&path, conversion).map_err(|e| CaptureError::Decode {
+        frame: index,
+        path: path.clone(),
+        message: e.message,
+    })?;
+    check_size(index, path, img, rig)
+}
+
+/// The image when its size is the calibration's, else [`CaptureError::Size`].
+fn check_size(
+    index: usize,
+    path: PathBuf,
+    img: GrayImage,
+    rig: Option<&StereoRig>,
+) -> Result<GrayImage, CaptureError> {
+    if let Some(rig) = rig
+        && (img.width, img.height) != (rig.cam0.width_px, rig.cam0.height_px)
+    {
+        return Err(CaptureError::Size {
+            frame: index,
+            path,
+            width: img.width,
+            height: img.height,
+            expected_width: rig.cam0.width_px,
+            expected_height: rig.cam0.height_px,
+        });
+    }
+    Ok(img)
+}
+
+/// Opens the two videos of the stereo pair and checks them against each other and the
+/// session's frame rate.
+fn open_videos(
+    root: &Path,
+    toml_path: &Path,
+    fps: f64,
+    cameras: &[String],
+    video: &BTreeMap<String, String>,
+) -> Result<[VideoReader; 2], CaptureError> {
+    let file_of = |camera: &String| {
+        video.get(camera).ok_or_else(|| CaptureError::Format {
+            path: toml_path.to_path_buf(),
+            line: 0,
+            message: format!("[video] names no file for camera {camera:?}"),
+        })
+    };
+    let pair = super::video::open_pair(
+        &root.join(file_of(&cameras[0])?),
+        &root.join(file_of(&cameras[1])?),
+    )?;
+    for v in &pair {
+        if (v.fps() - fps).abs() > 1e-3 * fps {
+            return Err(io_err(
+                v.path(),
+                format!(
+                    "the video runs at {} fps, session.toml says fps = {fps}",
+                    v.fps()
+                ),
+            ));
+        }
+    }
+    Ok(pair)
+}
+
 impl Replay {
-    /// Opens and checks a session: `session.toml` (fps, cameras, optional calibration),
-    /// `frames.csv` (consecutive frames from 0), the camera folders, and the calibration
-    /// (image sizes are then checked against it frame by frame).
+    /// Opens and checks a session: `session.toml` (fps, cameras, optional calibration,
+    /// optional `[video]`), `frames.csv` (consecutive frames from 0; optional for a video
+    /// session), the camera folders or videos, and the calibration (image sizes are then
+    /// checked against it frame by frame).
+    ///
+    /// A video session's timecode: `frames.csv`'s where it has one; else the timecode
+    /// track of cam0's video (read with `ffprobe` when it is installed); else `[timecode]
+    /// start` of `session.toml`; else none.
     ///
     /// # Errors
     /// [`CaptureError`] naming the file and line.
@@ -125,86 +308,106 @@ impl Replay {
                 "`cameras` must name at least two cameras".into(),
             ));
         }
-        for cam in &session.cameras {
-            let dir = root.join(cam);
-            if !dir.is_dir() {
-                return Err(io_err(&dir, "camera folder is missing"));
+        let videos = match &session.video {
+            Some(video) => Some(open_videos(
+                root,
+                &toml_path,
+                session.fps,
+                &session.cameras,
+                video,
+            )?),
+            None => {
+                for cam in &session.cameras {
+                    let dir = root.join(cam);
+                    if !dir.is_dir() {
+                        return Err(io_err(&dir, "camera folder is missing"));
+                    }
+                }
+                None
             }
-        }
+        };
         let calib_path = params
             .calibration
             .clone()
             .or_else(|| session.calibration.as_ref().map(|c| root.join(c)));
         let rig = calib_path.map(|p| read_rig(&p)).transpose()?;
         let frames_path = root.join("frames.csv");
-        let frames_text =
-            std::fs::read_to_string(&frames_path).map_err(|e| io_err(&frames_path, e))?;
-        let ferr = |line: usize, message: String| CaptureError::Format {
-            path: frames_path.clone(),
-            line,
-            message,
-        };
-        let mut lines = frames_text.lines().enumerate();
-        match lines.next() {
-            Some((_, h)) if h.trim().starts_with("frame,timestamp_ns,timecode") => {}
-            _ => {
-                return Err(ferr(
-                    1,
-                    "header must be `frame,timestamp_ns,timecode`".into(),
-                ));
-            }
-        }
         let mut timecode_rate = session.timecode.as_ref().and_then(|t| t.rate);
-        let mut frames = Vec::new();
-        for (i, line) in lines {
-            if line.trim().is_empty() {
-                continue;
-            }
-            let f: Vec<&str> = line.split(',').map(str::trim).collect();
-            if f.len() < 2 {
-                return Err(ferr(i + 1, "expected frame,timestamp_ns,timecode".into()));
-            }
-            let index: usize = f[0]
-                .parse()
-                .map_err(|_| ferr(i + 1, format!("frame {:?} is not a whole number", f[0])))?;
-            let ts: u64 = f[1]
-                .parse()
-                .map_err(|_| ferr(i + 1, format!("timestamp {:?} is not a whole number", f[1])))?;
-            if let Some((prev, prev_ts, _)) = frames.last()
-                && (index <= *prev || ts < *prev_ts)
-            {
-                return Err(ferr(i + 1, format!("frame {index} is out of order")));
-            }
-            let label = f.get(2).copied().unwrap_or("");
-            let timecode = if label.is_empty() {
-                None
-            } else {
-                let rate = match timecode_rate {
-                    Some(r) => r,
-                    None => {
-                        let r = TimecodeRate::from_fps(session.fps)
+        let frames = match &videos {
+            Some([v0, _]) if !frames_path.exists() => {
+                let start = probe_timecode(v0.path())
+                    .map(|label| (label, v0.path().to_path_buf()))
+                    .or_else(|| {
+                        session
+                            .timecode
+                            .as_ref()
+                            .and_then(|t| t.start.clone())
+                            .map(|label| (label, toml_path.clone()))
+                    });
+                let clock = match start {
+                    Some((label, from)) => {
+                        let rate = timecode_rate
+                            .or_else(|| rate_for_label(session.fps, &label))
                             .ok_or_else(|| {
-                                ferr(
-                                    i + 1,
-                                    "session.toml needs `[timecode] rate` to read timecodes".into(),
+                                format_err(
+                                    0,
+                                    format!(
+                                        "timecode {label} of {}: session.toml needs \
+                                         `[timecode] rate` to read it",
+                                        from.display()
+                                    ),
                                 )
-                            })
-                            .and_then(|r| {
-                                let df = label.contains(';');
-                                TimecodeRate::new(r.nominal, r.ntsc, df)
-                                    .map_err(|e| ferr(i + 1, e.to_string()))
                             })?;
-                        timecode_rate = Some(r);
-                        r
+                        timecode_rate = Some(rate);
+                        let start = Timecode::parse_at(&label, rate).map_err(|e| {
+                            format_err(0, format!("timecode of {}: {e}", from.display()))
+                        })?;
+                        Some(TimecodeClock::new(start, session.fps))
                     }
+                    None => None,
                 };
-                Some(Timecode::parse_at(label, rate).map_err(|e| ferr(i + 1, e.to_string()))?)
-            };
-            frames.push((index, ts, timecode));
-        }
-        if frames.is_empty() {
-            return Err(ferr(2, "no frames".into()));
-        }
+                (0..v0.frame_count())
+                    .map(|i| {
+                        (
+                            i,
+                            (i as f64 * 1e9 / session.fps).round() as u64,
+                            clock.map(|c| c.stamp(i as u64)),
+                        )
+                    })
+                    .collect()
+            }
+            _ => {
+                let frames = read_frames_csv(&frames_path, session.fps, &mut timecode_rate)?;
+                if let (Some([v0, _]), Some((last, _, _))) = (&videos, frames.last())
+                    && *last >= v0.frame_count()
+                {
+                    return Err(CaptureError::Format {
+                        path: frames_path,
+                        line: 0,
+                        message: format!(
+                            "names frame {last}, but {} has {} frames",
+                            v0.path().display(),
+                            v0.frame_count()
+                        ),
+                    });
+                }
+                frames
+            }
+        };
+        let media = match videos {
+            Some(readers) => Media::Videos {
+                readers: Box::new(readers),
+                container_timestamps: !frames_path.exists(),
+            },
+            None => Media::Images,
+        };
+        let video_paths = match &media {
+            Media::Videos { readers, .. } => Some([
+                readers[0].path().to_path_buf(),
+                readers[1].path().to_path_buf(),
+            ]),
+            Media::Images => None,
+        };
         Ok(Self {
             info: SessionInfo {
                 root: root.to_path_buf(),
@@ -213,12 +416,20 @@ impl Replay {
                 timecode_rate,
                 frames,
                 profile: session.profile.map(|p| root.join(p)),
+                videos: video_paths,
             },
             rig,
             params,
+            media,
             next: 0,
             stats: ReplayStats::default(),
         })
+    }
+
+    /// How colour images become grey from now on (a capture profile named in
+    /// `session.toml` is only known once the session is open).
+    pub fn set_gray_conversion(&mut self, conversion: GrayConversion) {
+        self.params.gray_conversion = conversion;
     }
 
     /// The session description.
@@ -246,29 +457,59 @@ impl Replay {
         self.stats
     }
 
-    fn load(&self, index: usize, camera: &str) -> Result<GrayImage, CaptureError> {
-        let path = self.info.root.join(camera).join(format!("{index:06}.png"));
-        if !path.is_file() {
-            return Err(CaptureError::MissingImage { frame: index, path });
-        }
-        let img = read_png_gray(&path).map_err(|message| CaptureError::Decode {
-            frame: index,
-            path: path.clone(),
-            message,
-        })?;
-        if let Some(rig) = &self.rig
-            && (img.width, img.height) != (rig.cam0.width_px, rig.cam0.height_px)
-        {
+    /// Both images of frame `index` (and the container's timestamp for a video session
+    /// without `frames.csv`).
+    fn load_pair(&mut self, index: usize) -> Result<([GrayImage; 2], Option<u64>), CaptureError> {
+        let conversion = self.params.gray_conversion;
+        let rig = self.rig.as_ref();
+        let (first, second, second_path, timestamp) = match &mut self.media {
+            Media::Images => {
+                let root = &self.info.root;
+                let cameras = &self.info.cameras;
+                // The two images decode side by side: decoding is a large part of a
+                // frame's cost, and the replay source is one stage thread.
+                let (a, b) = rayon::join(
+                    || load_image(root, &cameras[0], index, rig, conversion),
+                    || load_image(root, &cameras[1], index, rig, conversion),
+                );
+                (
+                    a,
+                    b,
+                    root.join(&cameras[1]).join(format!("{index:06}.png")),
+                    None,
+                )
+            }
+            Media::Videos {
+                readers,
+                container_timestamps,
+            } => {
+                let [r0, r1] = &mut **readers;
+                let path1 = r1.path().to_path_buf();
+                let (a, b) = rayon::join(|| r0.read_at(index), || r1.read_at(index));
+                let timestamp = match (&a, *container_timestamps) {
+                    (Ok(f), true) => Some(f.timestamp_ns),
+                    _ => None,
+                };
+                let gray = |r: &VideoReader, f: Result<super::video::VideoFrame, CaptureError>| {
+                    f.and_then(|f| {
+                        check_size(index, r.path().to_path_buf(), f.to_gray(conversion), rig)
+                    })
+                };
+                (gray(r0, a), gray(r1, b), path1, timestamp)
+            }
+        };
+        let (a, b) = (first?, second?);
+        if (a.width, a.height) != (b.width, b.height) {
             return Err(CaptureError::Size {
                 frame: index,
-                path,
-                width: img.width,
-                height: img.height,
-                expected_width: rig.cam0.width_px,
-                expected_height: rig.cam0.height_px,
+                path: second_path,
+                width: b.width,
+                height: b.height,
+                expected_width: a.width,
+                expected_height: a.height,
             });
         }
-        Ok(img)
+        Ok(([a, b], timestamp))
     }
 
     /// The next frame, `None` at the end. With `skip_bad_frames`, bad frames are counted,
@@ -278,47 +519,35 @@ impl Replay {
         loop {
             let (index, ts, tc) = *self.info.frames.get(self.next)?;
             self.next += 1;
-            // The two images decode side by side: PNG decoding is a large part of a frame's
-            // cost, and the replay source is one stage thread.
-            let (first, second) = rayon::join(
-                || self.load(index, &self.info.cameras[0]),
-                || self.load(index, &self.info.cameras[1]),
-            );
-            let result = first.and_then(|a| {
-                second.and_then(|b| {
-                    if (a.width, a.height) != (b.width, b.height) {
-                        Err(CaptureError::Size {
-                            frame: index,
-                            path: self
-                                .info
-                                .root
-                                .join(&self.info.cameras[1])
-                                .join(format!("{index:06}.png")),
-                            width: b.width,
-                            height: b.height,
-                            expected_width: a.width,
-                            expected_height: a.height,
-                        })
-                    } else {
-                        Ok([a, b])
-                    }
-                })
-            });
-            match result {
-                Ok(images) => {
+            match self.load_pair(index) {
+                Ok((images, container_ts)) => {
                     self.stats.frames_out += 1;
                     return Some(Ok(StereoFrame {
                         index,
-                        timestamp_ns: ts,
+                        timestamp_ns: container_ts.unwrap_or(ts),
                         timecode: tc,
                         images,
                     }));
                 }
-                Err(e) if self.params.skip_bad_frames => {
-                    self.stats.gaps += 1;
-                    tracing::warn!("skipping {e}");
+                Err(e) => {
+                    // A video that ended early: the rest of the take is gone too.
+                    if matches!(e, CaptureError::VideoEnded { .. }) {
+                        let rest = self.info.frames.len() - self.next;
+                        self.next = self.info.frames.len();
+                        if self.params.skip_bad_frames {
+                            self.stats.gaps += 1 + rest;
+                            tracing::warn!("skipping the last {} frames: {e}", 1 + rest);
+                            return None;
+                        }
+                        return Some(Err(e));
+                    }
+                    if self.params.skip_bad_frames {
+                        self.stats.gaps += 1;
+                        tracing::warn!("skipping {e}");
+                    } else {
+                        return Some(Err(e));
+                    }
                 }
-                Err(e) => return Some(Err(e)),
             }
         }
     }

@@ -84,11 +84,14 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let load = |path: &std::path::Path| {
-        helmcap::capture::read_png_gray(path).map(|im| TargetImage {
-            width: im.width,
-            height: im.height,
-            pixels: im.data,
-        })
+        // PNG, JPEG or TIFF by content; colour as Rec. 601 luma.
+        helmcap::capture::read_gray(path, helmcap::capture::GrayConversion::Luma)
+            .map_err(|e| e.message)
+            .map(|im| TargetImage {
+                width: im.width,
+                height: im.height,
+                pixels: im.data,
+            })
     };
     let start = Instant::now();
     let result = calibrate_stereo(&pairs, &target, &params, &load, &|| bar.inc(1));

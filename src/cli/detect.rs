@@ -222,7 +222,7 @@ fn load_input(
 }
 
 fn read_image(path: &Path) -> anyhow::Result<GrayImage> {
-    helmcap::capture::read_png_gray(path)
+    helmcap::capture::read_gray(path, Default::default())
         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
 }
 

@@ -9,6 +9,7 @@ mod dataset;
 mod demo;
 mod detect;
 mod enhance;
+mod ingest;
 mod live;
 mod markers;
 mod record;
@@ -74,6 +75,8 @@ enum Command {
     Record(record::RecordArgs),
     /// Run the pipeline on the live cameras (or test cameras): the outputs of replay.
     Live(live::LiveArgs),
+    /// Turn a pair of camera videos into a session folder of PNG frames.
+    Ingest(ingest::IngestArgs),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -111,6 +114,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Register(a) => register::run(a),
         Command::Record(a) => record::run(a),
         Command::Live(a) => live::run(a),
+        Command::Ingest(a) => ingest::run(a),
     }
 }
 

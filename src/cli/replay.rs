@@ -203,6 +203,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         ReplayParams {
             skip_bad_frames: args.skip_bad_frames,
             calibration: args.calib.clone(),
+            ..ReplayParams::default()
         },
     )
     .with_context(|| format!("opening session {}", args.session.display()))?;
@@ -230,6 +231,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let (ds, layout, neutral_markers) =
         load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
     let profile = load_profile(args.profile.as_deref().or(info.profile.as_deref()))?;
+    source.set_gray_conversion(profile.gray_conversion());
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.detect = profile.detect_params(Some(&config.rig));
     config.label = profile.label_params();
