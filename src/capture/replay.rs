@@ -109,10 +109,13 @@ impl Replay {
             line,
             message,
         };
-        if !(session.fps > 0.0 && session.fps.is_finite()) {
+        if !(session.fps > 0.0 && session.fps <= 1000.0) {
             return Err(format_err(
                 0,
-                format!("fps {} must be positive", session.fps),
+                format!(
+                    "fps = {} is out of range: above 0, at most 1000",
+                    session.fps
+                ),
             ));
         }
         if session.cameras.len() < 2 {
@@ -121,7 +124,16 @@ impl Replay {
                 "`cameras` must name at least two cameras".into(),
             ));
         }
-        for cam in &session.cameras {
+        for (k, cam) in session.cameras.iter().enumerate() {
+            if session.cameras[..k].contains(cam) {
+                return Err(format_err(
+                    0,
+                    format!(
+                        "`cameras` names {} twice: each camera needs its own folder",
+                        crate::limits::quoted(cam)
+                    ),
+                ));
+            }
             let dir = root.join(cam);
             if !dir.is_dir() {
                 return Err(io_err(&dir, "camera folder is missing"));
@@ -160,12 +172,44 @@ impl Replay {
             if f.len() < 2 {
                 return Err(ferr(i + 1, "expected frame,timestamp_ns,timecode".into()));
             }
-            let index: usize = f[0]
-                .parse()
-                .map_err(|_| ferr(i + 1, format!("frame {:?} is not a whole number", f[0])))?;
-            let ts: u64 = f[1]
-                .parse()
-                .map_err(|_| ferr(i + 1, format!("timestamp {:?} is not a whole number", f[1])))?;
+            let index: usize = f[0].parse().map_err(|_| {
+                ferr(
+                    i + 1,
+                    format!(
+                        "frame {} is not a whole number",
+                        crate::limits::quoted(f[0])
+                    ),
+                )
+            })?;
+            let ts: u64 = f[1].parse().map_err(|_| {
+                ferr(
+                    i + 1,
+                    format!(
+                        "timestamp {} is not a whole number",
+                        crate::limits::quoted(f[1])
+                    ),
+                )
+            })?;
+            if index as u64 > crate::limits::MAX_FRAME_NUMBER {
+                return Err(ferr(
+                    i + 1,
+                    format!(
+                        "frame {index} is above the largest frame number, {}",
+                        crate::limits::MAX_FRAME_NUMBER
+                    ),
+                ));
+            }
+            let previous = frames.last().map_or(0, |(p, _, _)| *p as u64);
+            if index as u64 > previous + crate::limits::MAX_FRAME_GAP {
+                return Err(ferr(
+                    i + 1,
+                    format!(
+                        "frame {index} follows frame {previous}: a gap of more than {} frames \
+                         (a damaged frames.csv?)",
+                        crate::limits::MAX_FRAME_GAP
+                    ),
+                ));
+            }
             if let Some((prev, prev_ts, _)) = frames.last()
                 && (index <= *prev || ts < *prev_ts)
             {

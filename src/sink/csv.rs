@@ -9,7 +9,9 @@
 //!   mm; `source` is `estimated` or `held`; frames without a pose have no row.
 //! - `tracks.csv`: `frame,camera,marker,u,v`: the labeled 2D detections, pixels.
 //!
-//! Each file is written as frames arrive and published atomically at the end.
+//! Each file is written as frames arrive and published atomically at the end. A frame is
+//! complete when all three files hold it; when a write fails (disk full), the files are cut
+//! back to the last complete frame and published that way (see [`StagedFile`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -52,12 +54,56 @@ impl Sink for CsvSink {
         pose.write_with(|w| writeln!(w, "frame,qw,qx,qy,qz,tx,ty,tz,source,timecode"))?;
         let mut tracks = StagedFile::create(&self.dir.join("tracks.csv"))?;
         tracks.write_with(|w| writeln!(w, "frame,camera,marker,u,v"))?;
+        for f in [&mut bundles, &mut pose, &mut tracks] {
+            f.mark_complete()?;
+        }
         self.files = Some([bundles, pose, tracks]);
         self.layout = Some(session.layout.clone());
         Ok(())
     }
 
     fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        let result = self.write_frame(f);
+        if let Some(files) = &mut self.files {
+            if result.is_ok() {
+                // Flush all three, then mark all three: a frame counts only when every
+                // file holds it.
+                let flushed = files.iter_mut().try_for_each(StagedFile::flush);
+                if flushed.is_ok() {
+                    for file in files.iter_mut() {
+                        file.mark_complete()?;
+                    }
+                    return Ok(());
+                }
+                for file in files.iter_mut() {
+                    file.roll_back()?;
+                }
+                return flushed;
+            }
+            for file in files.iter_mut() {
+                file.roll_back()?;
+            }
+        }
+        result
+    }
+
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        let mut first_error = None;
+        if let Some(files) = self.files.take() {
+            for f in files {
+                // Every file is published even when another one failed.
+                if let Err(e) = f.commit() {
+                    first_error.get_or_insert(e);
+                }
+            }
+        }
+        first_error.map_or(Ok(()), Err)
+    }
+}
+
+impl CsvSink {
+    /// Writes one frame's rows (buffered; [`Sink::write`] makes them complete).
+    fn write_frame(&mut self, f: &FrameResult) -> Result<(), SinkError> {
         let (Some([bundles, pose, tracks]), Some(layout)) = (&mut self.files, &self.layout) else {
             return Err(SinkError::Other("csv sink written before begin".into()));
         };
@@ -121,15 +167,6 @@ impl Sink for CsvSink {
             }
             Ok(())
         })
-    }
-
-    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
-        if let Some(files) = self.files.take() {
-            for f in files {
-                f.commit()?;
-            }
-        }
-        Ok(())
     }
 }
 
