@@ -192,6 +192,8 @@ fn messages_quote_a_short_excerpt_and_each_cause_once() {
     let out = dir.path().join("out");
     let o = helmcap(&[
         "solve",
+        "--dataset",
+        "builtin",
         "--markers",
         markers.to_str().unwrap(),
         "--bundles",
@@ -204,6 +206,8 @@ fn messages_quote_a_short_excerpt_and_each_cause_once() {
     assert!(e.len() < 400, "{} characters: {}", e.len(), &e[..200]);
     let o = helmcap(&[
         "solve",
+        "--dataset",
+        "builtin",
         "--markers",
         dir.path().join("missing.csv").to_str().unwrap(),
         "--bundles",

@@ -1207,7 +1207,7 @@ impl LiveConfig {
                 "syncbox",
                 "frame_delay_ms",
                 (0.0..=MAX_FRAME_DELAY_MS).contains(&sb.frame_delay_ms),
-                sb.frame_delay_ms.to_string(),
+                format!("{:?}", sb.frame_delay_ms),
                 &format!("0 to {MAX_FRAME_DELAY_MS} ms"),
             )?;
             check(
@@ -1244,7 +1244,7 @@ impl LiveConfig {
             "live",
             "pair_tolerance",
             l.pair_tolerance > 0.0 && l.pair_tolerance < 1.0,
-            l.pair_tolerance.to_string(),
+            format!("{:?}", l.pair_tolerance),
             "above 0 and below 1 (a fraction of a frame interval)",
         )?;
         check(

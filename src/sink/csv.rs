@@ -13,7 +13,7 @@
 //! complete when all three files hold it; when a write fails (disk full), the files are cut
 //! back to the last complete frame and published that way (see [`StagedFile`]).
 
-use std::io::Write;
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -170,17 +170,24 @@ impl CsvSink {
     }
 }
 
-/// Writes `metrics.json` atomically at the end of the take.
+/// Writes `metrics.json` atomically at the end of the take. Its room on disk is taken at
+/// the start ([`METRICS_RESERVE_BYTES`] blanks in the temporary file), so a take that
+/// fails because the disk is full still gets its metrics.
 #[derive(Debug)]
 pub struct MetricsSink {
     path: PathBuf,
+    file: Option<StagedFile>,
 }
+
+/// Bytes reserved for `metrics.json` at the start of a take (a take's metrics are a few KB).
+pub const METRICS_RESERVE_BYTES: usize = 16 * 1024;
 
 impl MetricsSink {
     /// A sink writing `path` (usually `<out>/metrics.json`).
     pub fn new(path: &Path) -> Self {
         Self {
             path: path.to_path_buf(),
+            file: None,
         }
     }
 }
@@ -194,6 +201,10 @@ impl Sink for MetricsSink {
         if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| SinkError::io(dir, e))?;
         }
+        let mut file = StagedFile::create(&self.path)?;
+        file.write_with(|w| w.write_all(&[b' '; METRICS_RESERVE_BYTES]))?;
+        file.mark_complete()?;
+        self.file = Some(file);
         Ok(())
     }
 
@@ -204,10 +215,22 @@ impl Sink for MetricsSink {
     fn finish(&mut self, metrics: &Metrics) -> Result<(), SinkError> {
         let text = serde_json::to_string_pretty(metrics)
             .map_err(|e| SinkError::Other(format!("metrics: {e}")))?;
-        crate::atomic_file::write_atomically(&self.path, |w| {
+        let Some(mut file) = self.file.take() else {
+            return crate::atomic_file::write_atomically(&self.path, |w| {
+                w.write_all(text.as_bytes())?;
+                w.write_all(b"\n")
+            })
+            .map_err(|e| SinkError::io(&self.path, e));
+        };
+        // Into the reserved room, then cut to the JSON's length.
+        file.write_with(|w| {
+            w.seek(SeekFrom::Start(0))?;
             w.write_all(text.as_bytes())?;
-            w.write_all(b"\n")
-        })
-        .map_err(|e| SinkError::io(&self.path, e))
+            w.write_all(b"\n")?;
+            w.flush()?;
+            let len = w.get_mut().stream_position()?;
+            w.get_mut().set_len(len)
+        })?;
+        file.commit()
     }
 }
