@@ -55,3 +55,9 @@ if [ ! -x "$python_env/bin/rerun" ] || ! "$python_env/bin/python" -c "import pxr
     echo "setup: could not install usd-core, c3d and rerun-sdk; the tests that use them skip" >&2
   fi
 fi
+# trimesh reads the PLY exports back (UVs per vertex, triangles) in the mesh tests.
+if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import trimesh" 2>/dev/null; then
+  echo "setup: installing trimesh into $python_env"
+  "$python_env/bin/pip" install -q trimesh ||
+    echo "setup: could not install trimesh; the PLY cross-check skips" >&2
+fi

@@ -12,6 +12,10 @@
 //!   that frame: the marker counts as missing there, and the row is counted in
 //!   [`ReadReport::non_finite_rows`]. Trackers write such rows, and one lost dot must not
 //!   stop a whole take.
+//! - A row with a coordinate beyond [`MAX_PLAUSIBLE_MM`] (10 m) is no face marker (wrong
+//!   units, corrupt data): the marker counts as missing there, counted in
+//!   [`ReadReport::implausible_rows`].
+//! - A frame number above [`crate::limits::MAX_FRAME_NUMBER`] is an error naming the line.
 //! - A marker name that the layout does not know is skipped and counted per name in
 //!   [`ReadReport::unknown_markers`] (capture files often carry helmet or stabilization dots
 //!   the face layout leaves out). A file in which *no* row names a layout marker is an error:
@@ -99,7 +103,15 @@ pub struct ReadReport {
     pub non_finite_rows: usize,
     /// Rows naming a marker the layout does not have, counted per name (sorted by name).
     pub unknown_markers: BTreeMap<String, usize>,
+    /// Rows with a coordinate farther than [`MAX_PLAUSIBLE_MM`] from the head frame's
+    /// origin (wrong units, a corrupt file), treated as the marker missing in that frame.
+    pub implausible_rows: usize,
 }
+
+/// A bundle coordinate beyond ±10 m is not on a face in the head frame (a face is about
+/// 250 mm across): such rows count as missing markers and are reported
+/// ([`ReadReport::implausible_rows`]), so they cannot drag a solve to 10^300 mm.
+pub const MAX_PLAUSIBLE_MM: f64 = 10_000.0;
 
 /// A frame being read: positions and the line of each marker's row (0: none yet).
 type FrameRows = (Vec<Option<Point3<f64>>>, Vec<usize>);
@@ -146,7 +158,10 @@ pub fn parse_bundles(
     if cols.len() < 5 || cols[..5] != ["frame", "marker", "x", "y", "z"] {
         return Err(err(
             hline,
-            format!("header {header:?} should start with frame,marker,x,y,z"),
+            format!(
+                "header {} should start with frame,marker,x,y,z",
+                crate::limits::quoted(header)
+            ),
         ));
     }
     let index: HashMap<&str, usize> = layout
@@ -175,9 +190,21 @@ pub fn parse_bundles(
         let frame: u64 = fields[0].parse().map_err(|_| {
             err(
                 line,
-                format!("frame {:?} is not a non-negative integer", fields[0]),
+                format!(
+                    "frame {} is not a non-negative integer",
+                    crate::limits::quoted(fields[0])
+                ),
             )
         })?;
+        if frame > crate::limits::MAX_FRAME_NUMBER {
+            return Err(err(
+                line,
+                format!(
+                    "frame {frame} is above the largest frame number, {}",
+                    crate::limits::MAX_FRAME_NUMBER
+                ),
+            ));
+        }
         let marker = fields[1];
         let mut xyz = [0.0f64; 3];
         for (k, c) in xyz.iter_mut().enumerate() {
@@ -185,9 +212,9 @@ pub fn parse_bundles(
                 err(
                     line,
                     format!(
-                        "{} coordinate {:?} is not a number",
+                        "{} coordinate {} is not a number",
                         ["x", "y", "z"][k],
-                        fields[2 + k]
+                        crate::limits::quoted(fields[2 + k])
                     ),
                 )
             })?;
@@ -214,10 +241,12 @@ pub fn parse_bundles(
             ));
         }
         rows[m] = line;
-        if xyz.iter().all(|c| c.is_finite()) {
-            positions[m] = Some(Point3::from(xyz));
-        } else {
+        if !xyz.iter().all(|c| c.is_finite()) {
             report.non_finite_rows += 1;
+        } else if xyz.iter().any(|c| c.abs() > MAX_PLAUSIBLE_MM) {
+            report.implausible_rows += 1;
+        } else {
+            positions[m] = Some(Point3::from(xyz));
         }
     }
     if known_rows == 0 && report.rows > 0 {
@@ -373,6 +402,32 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("wrong marker layout"), "{e}");
+    }
+
+    /// Bundles at 1e300 mm (the reproducer) count as missing markers, reported; a
+    /// frame number past the limit and a megabyte field are errors that quote briefly.
+    #[test]
+    fn implausible_coordinates_huge_frames_and_long_fields() {
+        let text = "frame,marker,x,y,z\n0,A,1e300,0,0\n0,B,1,2,3\n1,A,0,-20000,0\n";
+        let (frames, report) = parse_bundles(text, "t.csv", &layout()).unwrap();
+        assert_eq!(report.implausible_rows, 2);
+        assert_eq!(frames[0].positions[0], None);
+        assert_eq!(frames[0].positions[1], Some(Point3::new(1.0, 2.0, 3.0)));
+        let e = parse_bundles("frame,marker,x,y,z\n16777216,A,0,0,0\n", "t.csv", &layout())
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("t.csv:2: frame 16777216 is above"), "{e}");
+        let long = format!(
+            "frame,marker,x,y,z\n0,A,{},0,0\n",
+            "7".repeat(1 << 20) + "x"
+        );
+        let e = parse_bundles(&long, "t.csv", &layout())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("t.csv:2: x coordinate") && e.len() < 200,
+            "{e}"
+        );
     }
 
     #[test]

@@ -31,6 +31,7 @@ pub mod capture;
 pub mod dataset;
 pub mod enhance;
 pub mod lgi;
+pub mod limits;
 pub mod mesh;
 pub mod pipeline;
 pub mod rig;

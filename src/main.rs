@@ -10,8 +10,19 @@ fn main() -> std::process::ExitCode {
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            // One line: the error and its causes, outermost first.
-            eprintln!("error: {e:#}");
+            // One line: the error and its causes, outermost first, each once (a library
+            // error that prints its cause also hands it on as its source).
+            let mut text = String::new();
+            for cause in e.chain() {
+                let t = cause.to_string();
+                if !text.contains(&t) {
+                    if !text.is_empty() {
+                        text.push_str(": ");
+                    }
+                    text.push_str(&t);
+                }
+            }
+            eprintln!("error: {text}");
             std::process::ExitCode::FAILURE
         }
     }

@@ -20,11 +20,12 @@ use std::str::FromStr;
 pub enum TimecodeError {
     /// A rate the module does not know.
     #[error(
-        "unknown timecode rate {0:?} (expected 23.976, 24, 25, 29.97, 29.97df, 30, 47.952, 48, 50, 59.94, 59.94df or 60)"
+        "unknown timecode rate {} (expected 23.976, 24, 25, 29.97, 29.97df, 30, 47.952, 48, 50, 59.94, 59.94df or 60)",
+        crate::limits::quoted(.0)
     )]
     Rate(String),
     /// A timecode that does not parse or names a label that does not exist at its rate.
-    #[error("invalid timecode {text:?} at {rate}: {reason}")]
+    #[error("invalid timecode {} at {rate}: {reason}", crate::limits::quoted(.text))]
     Timecode {
         /// The text.
         text: String,

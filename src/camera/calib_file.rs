@@ -115,17 +115,27 @@ impl Parsed {
 
     fn real(&self, key: &'static str) -> Result<f64, CalibFileError> {
         let (line, s) = self.scalar(key)?;
-        parse_real(s)
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| self.bad(line, key, format!("{s:?} is not a finite number")))
+        parse_real(s).filter(|v| v.is_finite()).ok_or_else(|| {
+            self.bad(
+                line,
+                key,
+                format!("{} is not a finite number", crate::limits::quoted(s)),
+            )
+        })
     }
 
     fn positive_int(&self, key: &'static str) -> Result<u32, CalibFileError> {
         let (line, s) = self.scalar(key)?;
-        s.parse::<u32>()
-            .ok()
-            .filter(|&v| v > 0)
-            .ok_or_else(|| self.bad(line, key, format!("{s:?} is not a positive whole number")))
+        s.parse::<u32>().ok().filter(|&v| v > 0).ok_or_else(|| {
+            self.bad(
+                line,
+                key,
+                format!(
+                    "{} is not a positive whole number",
+                    crate::limits::quoted(s)
+                ),
+            )
+        })
     }
 
     /// A matrix of the given size (a column vector accepts `n×1` or `1×n`).
@@ -181,7 +191,10 @@ impl Parsed {
                 return Err(self.bad(
                     model_line,
                     model_key,
-                    format!("unknown model {other:?} (expected fisheye or pinhole)"),
+                    format!(
+                        "unknown model {} (expected fisheye or pinhole)",
+                        crate::limits::quoted(other)
+                    ),
                 ));
             }
         };
@@ -262,10 +275,17 @@ fn parse(path: &Path, text: &str) -> Result<Parsed, CalibFileError> {
         if raw.starts_with([' ', '\t']) {
             return Err(syntax(line_no, "unexpected indented line".into()));
         }
-        let (key, value) = raw
-            .split_once(':')
-            .ok_or_else(|| syntax(line_no, format!("expected `key: value`, found {raw:?}")))?;
-        let key = key.trim().to_string();
+        let (key, value) = raw.split_once(':').ok_or_else(|| {
+            syntax(
+                line_no,
+                format!(
+                    "expected `key: value`, found {}",
+                    crate::limits::quoted(raw)
+                ),
+            )
+        })?;
+        // Known keys are short: a longer one is kept (and quoted in errors) shortened.
+        let key = crate::limits::excerpt(key.trim());
         let value = value.trim();
         let parsed = if value.starts_with("!!opencv-matrix") {
             // Indented fields follow until the next top-level line.
@@ -294,7 +314,10 @@ fn parse(path: &Path, text: &str) -> Result<Parsed, CalibFileError> {
                 let (name, v) = sub.split_once(':').ok_or_else(|| {
                     syntax(
                         i,
-                        format!("key `{key}`: expected `field: value`, found {sub:?}"),
+                        format!(
+                            "key `{key}`: expected `field: value`, found {}",
+                            crate::limits::quoted(sub)
+                        ),
                     )
                 })?;
                 let name = match name.trim() {
@@ -305,7 +328,10 @@ fn parse(path: &Path, text: &str) -> Result<Parsed, CalibFileError> {
                     other => {
                         return Err(syntax(
                             i,
-                            format!("key `{key}`: unknown matrix field `{other}`"),
+                            format!(
+                                "key `{key}`: unknown matrix field {}",
+                                crate::limits::quoted(other)
+                            ),
                         ));
                     }
                 };
@@ -331,7 +357,12 @@ fn parse(path: &Path, text: &str) -> Result<Parsed, CalibFileError> {
             let cols = dim("cols")?;
             match fields.get("dt").map(|s| unquote(s)) {
                 Some("d" | "f" | "i" | "u" | "s" | "c" | "w") => {}
-                other => return Err(bad(format!("unsupported matrix element type {other:?}"))),
+                other => {
+                    return Err(bad(format!(
+                        "unsupported matrix element type {}",
+                        other.map_or("none".into(), crate::limits::quoted)
+                    )));
+                }
             }
             let data_text = fields
                 .get("data")
@@ -345,9 +376,12 @@ fn parse(path: &Path, text: &str) -> Result<Parsed, CalibFileError> {
                 .split(',')
                 .map(str::trim)
                 .filter(|s| !s.is_empty())
-                .map(|s| parse_real(s).ok_or_else(|| bad(format!("{s:?} is not a number"))))
+                .map(|s| {
+                    parse_real(s)
+                        .ok_or_else(|| bad(format!("{} is not a number", crate::limits::quoted(s))))
+                })
                 .collect::<Result<Vec<f64>, _>>()?;
-            if data.len() != rows * cols {
+            if rows.checked_mul(cols) != Some(data.len()) {
                 return Err(bad(format!(
                     "matrix declares {rows}×{cols} but has {} values",
                     data.len()

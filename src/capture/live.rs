@@ -561,11 +561,13 @@ impl LiveSource {
         if !(fps > 0.0 && fps.is_finite()) {
             return Err(bad(format!("fps {fps} must be positive")));
         }
-        if params.camera_queue == 0 || !(params.pair_tolerance > 0.0 && params.pair_tolerance < 1.0)
+        if !(1..=crate::limits::MAX_QUEUE_FRAMES).contains(&params.camera_queue)
+            || !(params.pair_tolerance > 0.0 && params.pair_tolerance < 1.0)
         {
-            return Err(bad(
-                "`camera_queue` must be at least 1 and `pair_tolerance` in (0, 1)".into(),
-            ));
+            return Err(bad(format!(
+                "`camera_queue` must be 1 to {} and `pair_tolerance` in (0, 1)",
+                crate::limits::MAX_QUEUE_FRAMES
+            )));
         }
         let camera_stop = Arc::new(AtomicBool::new(false));
         let mut names: [String; 2] = Default::default();
@@ -1001,6 +1003,48 @@ impl FrameSource for LiveSource {
     }
 }
 
+/// Largest camera width or height a config may ask for, pixels.
+pub const MAX_CAMERA_SIDE_PX: u32 = 16_384;
+
+/// Largest `[syncbox] frame_delay_ms`: a camera frame reaching the host a second after
+/// its trigger pulse's sync line is a misconfiguration, not a delay.
+pub const MAX_FRAME_DELAY_MS: f64 = 1_000.0;
+
+/// Largest `[syncbox] baud` (USB serial adapters stop at a few Mbaud).
+pub const MAX_BAUD: u32 = 4_000_000;
+
+/// Most `[record] writers` threads.
+pub const MAX_WRITERS: usize = 64;
+
+/// The 1-based line of `key` in `[table]` of a TOML text (`camera N` for the N-th
+/// `[[camera]]`), or 0 when it is not written there (a default, or inline tables).
+fn key_line(text: &str, table: &str, key: &str) -> usize {
+    let (name, nth) = match table.split_once(' ') {
+        Some((n, k)) => (n, k.parse::<usize>().unwrap_or(0)),
+        None => (table, 0),
+    };
+    let mut in_table = false;
+    let mut seen = 0usize;
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if t.starts_with('[') {
+            let header = t.trim_start_matches('[').trim_end_matches(']').trim();
+            in_table = header == name && {
+                seen += 1;
+                seen == nth + 1
+            };
+            continue;
+        }
+        if in_table
+            && let Some(rest) = t.strip_prefix(key)
+            && rest.trim_start().starts_with('=')
+        {
+            return i + 1;
+        }
+    }
+    0
+}
+
 /// `[timecode]` of `configs/live.toml`.
 #[derive(Debug, Clone, PartialEq, Default, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
@@ -1115,12 +1159,9 @@ impl LiveConfig {
                 format!("fps {} must be in (0, 1000]", config.fps),
             ));
         }
-        if config.record.queue_frames == 0 || config.record.writers == 0 {
-            return Err(format_err(
-                0,
-                "[record] queue_frames and writers must be at least 1".into(),
-            ));
-        }
+        config
+            .check_ranges(&text)
+            .map_err(|(line, m)| format_err(line, m))?;
         let dir = path.parent().unwrap_or(Path::new("."));
         if let Some(c) = &mut config.calibration {
             *c = dir.join(&*c);
@@ -1131,6 +1172,115 @@ impl LiveConfig {
             *s = dir.join(&*s);
         }
         Ok(config)
+    }
+
+    /// Range-checks every number of the config against the limits of
+    /// [`crate::limits`] (README "Limits"); the error is `(line, message)` naming the key
+    /// (`text` is the file, to find the key's line; 0 when not found).
+    fn check_ranges(&self, text: &str) -> Result<(), (usize, String)> {
+        use crate::limits::{MAX_DURATION_MS, MAX_QUEUE_FRAMES};
+        let check = |table: &str, key: &str, ok: bool, value: String, range: &str| {
+            if ok {
+                Ok(())
+            } else {
+                Err((
+                    key_line(text, table, key),
+                    format!("[{table}] {key} = {value} is out of range: {range}"),
+                ))
+            }
+        };
+        let ms = |v: u64| v >= 1 && v as f64 <= MAX_DURATION_MS;
+        let ms_range = format!("1 to {MAX_DURATION_MS} ms");
+        for (i, c) in self.camera.iter().enumerate() {
+            let table = format!("camera {i}");
+            for (key, v) in [("width", c.width), ("height", c.height)] {
+                check(
+                    &table,
+                    key,
+                    (1..=MAX_CAMERA_SIDE_PX).contains(&v),
+                    v.to_string(),
+                    &format!("1 to {MAX_CAMERA_SIDE_PX} pixels"),
+                )?;
+            }
+        }
+        if let Some(sb) = &self.syncbox {
+            check(
+                "syncbox",
+                "frame_delay_ms",
+                (0.0..=MAX_FRAME_DELAY_MS).contains(&sb.frame_delay_ms),
+                format!("{:?}", sb.frame_delay_ms),
+                &format!("0 to {MAX_FRAME_DELAY_MS} ms"),
+            )?;
+            check(
+                "syncbox",
+                "timeout_ms",
+                ms(sb.timeout_ms),
+                sb.timeout_ms.to_string(),
+                &ms_range,
+            )?;
+            check(
+                "syncbox",
+                "retry_ms",
+                ms(sb.retry_ms),
+                sb.retry_ms.to_string(),
+                &ms_range,
+            )?;
+            check(
+                "syncbox",
+                "baud",
+                (1..=MAX_BAUD).contains(&sb.baud),
+                sb.baud.to_string(),
+                &format!("1 to {MAX_BAUD}"),
+            )?;
+        }
+        let l = &self.live;
+        check(
+            "live",
+            "camera_queue",
+            (1..=MAX_QUEUE_FRAMES).contains(&l.camera_queue),
+            l.camera_queue.to_string(),
+            &format!("1 to {MAX_QUEUE_FRAMES} frames"),
+        )?;
+        check(
+            "live",
+            "pair_tolerance",
+            l.pair_tolerance > 0.0 && l.pair_tolerance < 1.0,
+            format!("{:?}", l.pair_tolerance),
+            "above 0 and below 1 (a fraction of a frame interval)",
+        )?;
+        check(
+            "live",
+            "camera_lost_ms",
+            ms(l.camera_lost_ms),
+            l.camera_lost_ms.to_string(),
+            &ms_range,
+        )?;
+        let r = &self.record;
+        check(
+            "record",
+            "queue_frames",
+            (1..=MAX_QUEUE_FRAMES).contains(&r.queue_frames),
+            r.queue_frames.to_string(),
+            &format!("1 to {MAX_QUEUE_FRAMES} frames"),
+        )?;
+        check(
+            "record",
+            "writers",
+            (1..=MAX_WRITERS).contains(&r.writers),
+            r.writers.to_string(),
+            &format!("1 to {MAX_WRITERS} threads"),
+        )?;
+        if let Some(t) = &self.test {
+            let frames = t.frames.unwrap_or(0) as u64;
+            check(
+                "test",
+                "frames",
+                frames <= crate::limits::MAX_FRAME_NUMBER,
+                frames.to_string(),
+                &format!("0 to {}", crate::limits::MAX_FRAME_NUMBER),
+            )?;
+        }
+        Ok(())
     }
 
     /// The timecode rate: `[timecode] rate`, else derived from the camera rate (see
@@ -1238,7 +1388,9 @@ impl LiveConfig {
             sync,
             LiveTimecode {
                 rate: self.timecode_rate(),
-                frame_delay: Duration::from_secs_f64(frame_delay_ms.max(0.0) / 1000.0),
+                // Range-checked at load; a config built in code falls back to no delay.
+                frame_delay: Duration::try_from_secs_f64(frame_delay_ms / 1000.0)
+                    .unwrap_or_default(),
             },
         )
     }

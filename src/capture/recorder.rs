@@ -258,10 +258,13 @@ impl Recorder {
         header: SessionHeader,
         params: RecorderParams,
     ) -> Result<Self, RecordError> {
-        if params.queue_frames == 0 || params.writers == 0 {
-            return Err(RecordError::Params(
-                "queue_frames and writers must be at least 1".into(),
-            ));
+        if !(1..=crate::limits::MAX_QUEUE_FRAMES).contains(&params.queue_frames)
+            || !(1..=64).contains(&params.writers)
+        {
+            return Err(RecordError::Params(format!(
+                "queue_frames must be 1 to {} and writers 1 to 64",
+                crate::limits::MAX_QUEUE_FRAMES
+            )));
         }
         if !(header.fps > 0.0 && header.fps.is_finite()) {
             return Err(RecordError::Params(format!(

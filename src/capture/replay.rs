@@ -149,10 +149,46 @@ fn read_frames_csv(
         }
         let index: usize = f[0]
             .parse()
-            .map_err(|_| ferr(i + 1, format!("frame {:?} is not a whole number", f[0])))?;
+            .map_err(|_| {
+                ferr(
+                    i + 1,
+                    format!(
+                        "frame {} is not a whole number",
+                        crate::limits::quoted(f[0])
+                    ),
+                )
+            })?;
         let ts: u64 = f[1]
             .parse()
-            .map_err(|_| ferr(i + 1, format!("timestamp {:?} is not a whole number", f[1])))?;
+            .map_err(|_| {
+                ferr(
+                    i + 1,
+                    format!(
+                        "timestamp {} is not a whole number",
+                        crate::limits::quoted(f[1])
+                    ),
+                )
+            })?;
+        if index as u64 > crate::limits::MAX_FRAME_NUMBER {
+            return Err(ferr(
+                i + 1,
+                format!(
+                    "frame {index} is above the largest frame number, {}",
+                    crate::limits::MAX_FRAME_NUMBER
+                ),
+            ));
+        }
+        let previous = frames.last().map_or(0, |(p, _, _)| *p as u64);
+        if index as u64 > previous + crate::limits::MAX_FRAME_GAP {
+            return Err(ferr(
+                i + 1,
+                format!(
+                    "frame {index} follows frame {previous}: a gap of more than {} frames \
+                     (a damaged frames.csv?)",
+                    crate::limits::MAX_FRAME_GAP
+                ),
+            ));
+        }
         if let Some((prev, prev_ts, _)) = frames.last()
             && (index <= *prev || ts < *prev_ts)
         {
@@ -307,6 +343,17 @@ impl Replay {
                 0,
                 "`cameras` must name at least two cameras".into(),
             ));
+        }
+        for (k, cam) in session.cameras.iter().enumerate() {
+            if session.cameras[..k].contains(cam) {
+                return Err(format_err(
+                    0,
+                    format!(
+                        "`cameras` names {} twice: each camera needs its own folder",
+                        crate::limits::quoted(cam)
+                    ),
+                ));
+            }
         }
         let videos = match &session.video {
             Some(video) => Some(open_videos(

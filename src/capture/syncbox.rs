@@ -368,7 +368,22 @@ pub struct SyncCounters {
     pub counter_resets: u64,
     /// Times the box went from healthy to lost (silent or disconnected).
     pub losses: u64,
+    /// Times the port sent more than [`MAX_BYTES_PER_SEC`] (a flood: wrong device, wrong
+    /// baud rate, a loop-back): the reader then drops input instead of parsing it.
+    pub floods: u64,
+    /// Bytes dropped unparsed during floods.
+    pub flood_bytes: u64,
 }
+
+/// Most bytes a second the reader parses. A box sends one line of at most
+/// [`MAX_LINE_BYTES`] per timecode frame (under 6 KB/s at 60 fps): beyond 16 KB/s the
+/// input is a flood, and parsing it would take CPU from the capture pipeline (a 40 MB/s
+/// flood halved its frame rate). During a flood the reader drops what it reads and pauses
+/// for the rest of each 100 ms window; the sync box counts as silent meanwhile.
+pub const MAX_BYTES_PER_SEC: usize = 16 * 1024;
+
+/// Window of the flood limit.
+const FLOOD_WINDOW: Duration = Duration::from_millis(100);
 
 /// The latest valid line and when it arrived.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -449,10 +464,14 @@ impl SyncBox {
                 "`port` must be set, `baud` and `timeout_ms` above 0".into(),
             ));
         }
-        if !(config.frame_delay_ms >= 0.0 && config.frame_delay_ms.is_finite()) {
-            return Err(SyncBoxError::Config(
-                "`frame_delay_ms` must be a finite number of at least 0".into(),
-            ));
+        if !(0.0..=1000.0).contains(&config.frame_delay_ms)
+            || config.timeout_ms as f64 > crate::limits::MAX_DURATION_MS
+            || config.retry_ms as f64 > crate::limits::MAX_DURATION_MS
+        {
+            return Err(SyncBoxError::Config(format!(
+                "`frame_delay_ms` must be 0 to 1000, `timeout_ms` and `retry_ms` at most {} ms",
+                crate::limits::MAX_DURATION_MS
+            )));
         }
         let shared = Arc::new(Mutex::new(Shared {
             latest: None,
@@ -540,6 +559,8 @@ fn reader_loop(config: &SyncBoxConfig, shared: &Mutex<Shared>, stop: &AtomicBool
     let mut logged_bad = 0u64;
     let mut buf = [0u8; 512];
     let mut health = SyncHealth::Connecting;
+    let budget = MAX_BYTES_PER_SEC / 10; // per FLOOD_WINDOW
+    let (mut window_start, mut window_bytes, mut flooding) = (Instant::now(), 0usize, false);
     while !stop.load(Ordering::Relaxed) {
         {
             let mut s = lock(shared);
@@ -587,6 +608,39 @@ fn reader_loop(config: &SyncBoxConfig, shared: &Mutex<Shared>, stop: &AtomicBool
         };
         let lost = match p.read(&mut buf) {
             Ok(0) => Some("end of stream".to_string()),
+            Ok(n)
+                if {
+                    let now = Instant::now();
+                    if now.saturating_duration_since(window_start) >= FLOOD_WINDOW {
+                        if window_bytes <= budget {
+                            flooding = false;
+                        }
+                        window_start = now;
+                        window_bytes = 0;
+                    }
+                    window_bytes += n;
+                    window_bytes > budget
+                } =>
+            {
+                // A flood: drop the bytes unparsed and sit out the rest of the window.
+                {
+                    let mut s = lock(shared);
+                    s.counters.flood_bytes += n as u64;
+                    if !flooding {
+                        s.counters.floods += 1;
+                        tracing::warn!(
+                            "sync box: {} sends more than {MAX_BYTES_PER_SEC} bytes/s; input \
+                             dropped until it calms down (wrong device or baud rate?)",
+                            config.port
+                        );
+                    }
+                }
+                flooding = true;
+                parser.reset();
+                let rest = (window_start + FLOOD_WINDOW).saturating_duration_since(Instant::now());
+                sleep_unless_stopped(rest, stop);
+                None
+            }
             Ok(n) => {
                 let mut lines = Vec::new();
                 parser.push(buf.get(..n).unwrap_or_default(), |l| lines.push(l));
@@ -1040,6 +1094,54 @@ mod tests {
         assert_eq!(c.parser.lines_ok, 7);
         assert!(c.parser.partial_lines >= 1, "{c:?}");
         assert!(c.losses >= 2, "{c:?}");
+    }
+
+    /// A flood of garbage (the issue's 40 MB/s serial flood) is detected and dropped
+    /// unparsed at a bounded rate; lines parse again once it stops.
+    #[test]
+    fn a_serial_flood_is_rate_limited_and_counted() {
+        let dir = tempfile::tempdir().unwrap();
+        let link = dir.path().join("syncbox");
+        let (mut master, _slave) = pty(&link);
+        let sync = SyncBox::start(SyncBoxConfig {
+            port: link.to_string_lossy().into_owned(),
+            timeout_ms: 300,
+            retry_ms: 50,
+            ..Default::default()
+        })
+        .unwrap();
+        wait_for("open", Duration::from_secs(5), || {
+            sync.status().counters.opens == 1
+        });
+        serialport::SerialPort::set_timeout(&mut master, Duration::from_millis(5)).unwrap();
+        let flood = vec![b'x'; 4096];
+        let t = Instant::now();
+        let mut sent = 0usize;
+        while t.elapsed() < Duration::from_millis(600) {
+            // The pty's buffer fills while the reader sits out its windows: writes time out.
+            if let Ok(n) = master.write(&flood) {
+                sent += n;
+            }
+        }
+        let c = sync.status().counters;
+        assert!(c.floods >= 1 && c.flood_bytes > 0, "{c:?}");
+        // Parsed input stays within the limit (plus one window's budget and a read).
+        let parsed = c.parser.garbage_bytes;
+        assert!(
+            parsed as f64 <= MAX_BYTES_PER_SEC as f64 * 0.8 + 2048.0,
+            "{parsed} bytes parsed of {sent} sent"
+        );
+        // Calm again (once the backlog is read): lines at the box's pace parse.
+        let before = sync.status().counters.parser.lines_ok;
+        let end = Instant::now() + Duration::from_secs(10);
+        let mut k = 0u64;
+        while sync.status().counters.parser.lines_ok < before + 3 {
+            assert!(Instant::now() < end, "no line parsed after the flood");
+            let line = format_line(&tc("10:00:00:00@30").add_frames(k), 2 * k);
+            let _ = master.write_all(line.as_bytes());
+            k += 1;
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     #[test]

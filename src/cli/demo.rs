@@ -106,6 +106,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         dataset,
         markers: None,
         out: args.out.join("replay"),
+        // The demo's own folder: each run replaces the previous one.
+        overwrite: true,
         rrd: with_rerun.then(|| rrd.clone()),
         // Half-size images keep the recording near 60 MB for 120 frames (240 MB at full
         // size); the markers are drawn at full precision either way.

@@ -70,6 +70,10 @@ pub struct LiveArgs {
     /// Frames each stage channel holds.
     #[arg(long, default_value_t = 4)]
     pub queue: usize,
+    /// Replace the take in --out: its files are removed before the run (a folder with
+    /// files is refused otherwise).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Do not read or write the dataset and LGI index caches.
     #[arg(long)]
     pub no_cache: bool,
@@ -131,9 +135,12 @@ impl FrameSource for LimitedLive {
 /// Runs `helmcap live`.
 pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     if let Some(s) = args.seconds
-        && !(s > 0.0 && s.is_finite())
+        && !(s > 0.0 && s <= helmcap::limits::MAX_TAKE_SECONDS)
     {
-        anyhow::bail!("--seconds {s} must be positive");
+        anyhow::bail!(
+            "--seconds {s} must be above 0 and at most {} (a week)",
+            helmcap::limits::MAX_TAKE_SECONDS
+        );
     }
     let live_config = super::record::load_config(&args.config, args.sync_port.as_deref())?;
     let dataset_args = DatasetArgs {
@@ -161,6 +168,9 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         &args.solve_stage,
     )?;
 
+    // One take per folder, one run per folder (held until the take is written).
+    let _take = helmcap::sink::TakeDir::claim(&args.out, args.overwrite)?;
+
     // The cameras start last, once everything slow is built.
     let stop = stop_flag();
     let mut source = live_config
@@ -185,7 +195,6 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
 
     let out = &args.out;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (mut sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
     args.view
         .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;

@@ -52,13 +52,20 @@ pub fn load_config(path: &Path, sync_port: Option<&str>) -> anyhow::Result<LiveC
 /// Runs `helmcap record`.
 pub fn run(args: RecordArgs) -> anyhow::Result<()> {
     if let Some(s) = args.seconds
-        && !(s > 0.0 && s.is_finite())
+        && !(s > 0.0 && s <= helmcap::limits::MAX_TAKE_SECONDS)
     {
-        anyhow::bail!("--seconds {s} must be positive");
+        anyhow::bail!(
+            "--seconds {s} must be above 0 and at most {} (a week)",
+            helmcap::limits::MAX_TAKE_SECONDS
+        );
     }
     let mut config = load_config(&args.config, args.sync_port.as_deref())?;
     if let Some(q) = args.queue_frames {
-        anyhow::ensure!(q > 0, "--queue-frames must be at least 1");
+        anyhow::ensure!(
+            (1..=helmcap::limits::MAX_QUEUE_FRAMES).contains(&q),
+            "--queue-frames {q} must be 1 to {}",
+            helmcap::limits::MAX_QUEUE_FRAMES
+        );
         config.record.queue_frames = q;
     }
     let stop = super::replay::stop_flag();

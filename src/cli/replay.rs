@@ -14,6 +14,7 @@ use helmcap::lgi::LgiParams;
 use helmcap::pipeline::{
     FrameResult, GroundTruth, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
 };
+use helmcap::sink::TakeDir;
 use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
 use helmcap::solve::Solver;
 use helmcap::track::CaptureProfile;
@@ -52,9 +53,13 @@ pub struct ReplayArgs {
     /// Marker layout CSV (default for the built-in actor: its shipped layout).
     #[arg(long, short = 'k', value_name = "CSV")]
     pub markers: Option<PathBuf>,
-    /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json, exports).
+    /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json, exports). It
+    /// holds one take: a folder with files is refused unless --overwrite.
     #[arg(long, short, default_value = "out/replay")]
     pub out: PathBuf,
+    /// Replace the take in --out: its files are removed before the run.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Also save a rerun recording (.rrd) of the take (view it with `rerun FILE`).
     #[arg(long, value_name = "FILE")]
     pub rrd: Option<PathBuf>,
@@ -223,6 +228,8 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .cloned()
         .context("the session names no calibration; pass --calib")?;
     let info = source.info().clone();
+    // One take per folder, one run per folder (held until the take is written).
+    let _take = TakeDir::claim(&args.out, args.overwrite)?;
     let dataset_args = DatasetArgs {
         dataset: args.dataset.clone(),
         no_cache: args.no_cache,
@@ -260,7 +267,6 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .map(Arc::new);
 
     let out = &args.out;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (mut sinks, mut outputs) = file_sinks(out, &args.export);
     args.view
         .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
@@ -280,7 +286,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     match result {
         Ok(metrics) => Ok(ReplayOutcome { metrics, outputs }),
         Err(e) => Err(anyhow::Error::new(e).context(format!(
-            "replay of {} stopped; outputs so far are in {}",
+            "replay of {} stopped; the outputs in {} hold the frames completed before the error",
             args.session.display(),
             out.display()
         ))),

@@ -90,6 +90,14 @@ pub fn run(args: SolveArgs) -> anyhow::Result<()> {
             report.non_finite_rows
         );
     }
+    if report.implausible_rows > 0 {
+        tracing::warn!(
+            "{}: {} rows with a coordinate beyond {} mm (wrong units?) count as missing markers",
+            args.bundles.display(),
+            report.implausible_rows,
+            helmcap::bundles::MAX_PLAUSIBLE_MM
+        );
+    }
     if !report.unknown_markers.is_empty() {
         let names: Vec<String> = report
             .unknown_markers

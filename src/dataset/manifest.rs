@@ -308,7 +308,10 @@ impl Manifest {
             Some(s) => Some(parse_vertex_range(s).ok_or_else(|| {
                 DatasetError::invalid(
                     path,
-                    format!("face_vertices {s:?} is not an inclusive range like \"0..9408\""),
+                    format!(
+                        "face_vertices {} is not an inclusive range like \"0..9408\"",
+                        crate::limits::quoted(s)
+                    ),
                 )
             })?),
             None => None,
@@ -459,8 +462,10 @@ impl Manifest {
                         DatasetError::invalid(
                             path,
                             format!(
-                                "regions.{name} {text:?} is not a list of vertex indices and \
-                                 inclusive ranges like \"10..20, 25\""
+                                "regions.{name} {} is not a list of vertex indices and \
+                                 inclusive ranges like \"10..20, 25\" of at most {} vertices",
+                                crate::limits::quoted(text),
+                                crate::limits::MAX_RANGE_VERTICES
                             ),
                         )
                     })?;
@@ -658,13 +663,25 @@ pub fn parse_vertex_range(s: &str) -> Option<RangeInclusive<u32>> {
 }
 
 /// Parses a comma-separated list of vertex indices and inclusive ranges (`"3, 10..20"`),
-/// sorted and without repeats; `None` on any malformed item.
+/// sorted and without repeats; `None` on any malformed item, and when the list would
+/// hold more than [`crate::limits::MAX_RANGE_VERTICES`] entries (checked before
+/// anything is allocated: `"0..4000000000"` is refused, not expanded).
 pub fn parse_vertex_list(s: &str) -> Option<Vec<u32>> {
     let mut out = Vec::new();
+    let mut total = 0u64;
     for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
         if item.contains("..") {
-            out.extend(parse_vertex_range(item)?);
+            let r = parse_vertex_range(item)?;
+            total += u64::from(r.end() - r.start()) + 1;
+            if total > crate::limits::MAX_RANGE_VERTICES {
+                return None;
+            }
+            out.extend(r);
         } else {
+            total += 1;
+            if total > crate::limits::MAX_RANGE_VERTICES {
+                return None;
+            }
             out.push(item.parse().ok()?);
         }
     }
@@ -908,6 +925,9 @@ mod tests {
         assert_eq!(parse_vertex_list(" 7, 1..3,2 ,"), Some(vec![1, 2, 3, 7]));
         assert_eq!(parse_vertex_list("1..x"), None);
         assert_eq!(parse_vertex_list("-1"), None);
+        // A huge range is refused before it is expanded (it used to allocate 16 GB).
+        assert_eq!(parse_vertex_list("0..4000000000"), None);
+        assert_eq!(parse_vertex_list(&"0..9000000, ".repeat(3)), None);
         let with_regions = write_manifest(
             dir.path(),
             "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\n\
@@ -970,6 +990,10 @@ mod tests {
             (
                 "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\nmouth_r = \"1\"\nbrow_l = \"a\"\nbrow_r = \"3\"\n",
                 "regions.brow_l \"a\" is not a list",
+            ),
+            (
+                "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0..4000000000\"\nmouth_r = \"1\"\nbrow_l = \"2\"\nbrow_r = \"3\"\n",
+                "regions.mouth_l \"0..4000000000\" is not a list",
             ),
             (
                 "units = \"mm\"\nneutral = \"neutral.obj\"\n[regions]\nmouth_l = \"0\"\n",

@@ -124,7 +124,10 @@ impl MarkerLayout {
         if cols.len() < 2 || cols[0] != "name" || cols[1] != "vertex" {
             return Err(err(
                 hline,
-                format!("header {header:?} should be name,vertex,stabilize_weight"),
+                format!(
+                    "header {} should be name,vertex,stabilize_weight",
+                    crate::limits::quoted(header)
+                ),
             ));
         }
         let weight_col = cols.iter().position(|c| *c == "stabilize_weight");
@@ -146,7 +149,10 @@ impl MarkerLayout {
             let vertex: u32 = fields[1].parse().map_err(|_| {
                 err(
                     line,
-                    format!("vertex {:?} is not a vertex index", fields[1]),
+                    format!(
+                        "vertex {} is not a vertex index",
+                        crate::limits::quoted(fields[1])
+                    ),
                 )
             })?;
             let stabilize_weight = match weight_col.and_then(|c| fields.get(c)) {
@@ -156,13 +162,19 @@ impl MarkerLayout {
                     _ => {
                         return Err(err(
                             line,
-                            format!("stabilize_weight {w:?} is not a number in 0..1"),
+                            format!(
+                                "stabilize_weight {} is not a number in 0..1",
+                                crate::limits::quoted(w)
+                            ),
                         ));
                     }
                 },
             };
             if !names.insert(name.to_string()) {
-                return Err(err(line, format!("marker name {name:?} appears twice")));
+                return Err(err(
+                    line,
+                    format!("marker name {} appears twice", crate::limits::quoted(name)),
+                ));
             }
             if !vertices.insert(vertex) {
                 return Err(err(line, format!("vertex {vertex} carries two markers")));

@@ -1,8 +1,17 @@
-//! Binary PLY export, for viewers (MeshLab, Blender, CloudCompare).
+//! Binary PLY export, for viewers and DCC tools (Blender, MeshLab, trimesh), and a PLY
+//! reader for scans.
 //!
-//! PLY here is an output format only: it stores 32-bit floats, so it is not an exact
+//! PLY here is an output format first: it stores 32-bit floats, so it is not an exact
 //! exchange format (use OBJ, which round-trips `f64` bit-identically, for that).
+//!
+//! # Reading limits
+//! Every element count of the header is checked before a row is read: all elements
+//! together may declare at most [`crate::limits::MAX_PLY_ROWS`] rows, an element with rows
+//! needs a property, and the rows must fit the bytes the file holds (each row takes at
+//! least its scalars' sizes in binary, two bytes per value in ASCII). A list holds at most
+//! 1000 items. ASCII errors name the file's line.
 
+use std::collections::HashMap;
 use std::io::{self, Write};
 use std::path::Path;
 
@@ -17,19 +26,21 @@ use super::{Mesh, MeshError};
 /// `positions` (#V) replaces the mesh's own positions when given (a shape sharing the
 /// mesh's topology). Layout:
 /// ```text
-/// element vertex #V       property float x, y, z
-/// element face #F         property list uchar int vertex_indices
-///                         property list uchar float texcoord     (only with UVs)
+/// element vertex #V'      property float x, y, z
+///                         property float s, t            (only with UVs)
+/// element face #T         property list uchar int vertex_indices
 /// ```
-/// Polygons are written as given (quads stay quads). `texcoord` is MeshLab's per-face
-/// wedge convention: `2 n` floats `u0 v0 u1 v1 …`, one `(u, v)` pair per corner in the
-/// polygon's corner order. Coordinates are rounded to the nearest `f32`.
+/// Faces are the mesh's triangulated view ([`Mesh::triangles`]: quads split along their
+/// shorter diagonal in the neutral, other polygons fanned), so readers that expect one
+/// face size (trimesh) read it. UVs are per vertex (`s`, `t`, the names Blender's and
+/// trimesh's importers read): a vertex whose corners carry different UVs (a seam) is
+/// written once per UV, the first copy at its own index, the others after the mesh's
+/// vertices (`#V' ≥ #V`). Coordinates are rounded to the nearest `f32`.
 ///
 /// # Errors
 /// [`MeshError::Invalid`] (before the file is created) when `positions` has the wrong
-/// length, a coordinate is not finite or too large for `f32`, a polygon has more than 255
-/// corners, or the mesh has more than `i32::MAX` vertices; [`MeshError::Io`] (naming
-/// `path`) when the file cannot be written.
+/// length, a coordinate is not finite or too large for `f32`, or the mesh has more than
+/// `i32::MAX` vertices; [`MeshError::Io`] (naming `path`) when the file cannot be written.
 pub fn write_ply(
     path: &Path,
     mesh: &Mesh,
@@ -37,12 +48,6 @@ pub fn write_ply(
 ) -> Result<(), MeshError> {
     let positions = positions.unwrap_or(&mesh.positions);
     check_positions(mesh, positions)?;
-    if i32::try_from(mesh.vertex_count()).is_err() {
-        return Err(MeshError::Invalid(format!(
-            "{} vertices do not fit PLY's 32-bit signed indices",
-            mesh.vertex_count()
-        )));
-    }
     let too_big = |x: f64| !(x as f32).is_finite();
     if let Some(v) = positions.iter().position(|p| p.iter().any(|&c| too_big(c))) {
         return Err(MeshError::Invalid(format!(
@@ -54,53 +59,111 @@ pub fn write_ply(
             "texture coordinate {t} is too large for a 32-bit float"
         )));
     }
-    if let Some(f) = mesh.faces().position(|f| f.len() > usize::from(u8::MAX)) {
+    let split = SeamSplit::new(mesh);
+    if i32::try_from(split.vertices.len()).is_err() {
         return Err(MeshError::Invalid(format!(
-            "polygon {f} has {} corners; PLY's uchar count holds at most 255",
-            mesh.face(f).len()
+            "{} vertices do not fit PLY's 32-bit signed indices",
+            split.vertices.len()
         )));
     }
-    write_atomically(path, |w| write_body(w, mesh, positions))
+    write_atomically(path, |w| write_body(w, mesh, positions, &split))
+}
+
+/// The vertices of the PLY file: each a (mesh vertex, UV index) pair, and the triangles
+/// in those vertices.
+struct SeamSplit {
+    /// Mesh vertex and UV index (None without UVs) of each written vertex.
+    vertices: Vec<(u32, Option<u32>)>,
+    /// Triangles, indices into `vertices`.
+    triangles: Vec<[u32; 3]>,
+}
+
+impl SeamSplit {
+    fn new(mesh: &Mesh) -> Self {
+        let v_count = mesh.vertex_count();
+        if !mesh.has_uvs() || mesh.triangle_uvs.len() != mesh.triangles.len() {
+            return Self {
+                vertices: (0..v_count as u32).map(|v| (v, None)).collect(),
+                triangles: mesh.triangles.clone(),
+            };
+        }
+        let mut vertices: Vec<(u32, Option<u32>)> =
+            (0..v_count as u32).map(|v| (v, None)).collect();
+        let mut extra: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut triangles = Vec::with_capacity(mesh.triangles.len());
+        for (tri, uv) in mesh.triangles.iter().zip(&mesh.triangle_uvs) {
+            let mut out = [0u32; 3];
+            for k in 0..3 {
+                let (v, t) = (tri[k], uv[k]);
+                out[k] = match vertices[v as usize].1 {
+                    None => {
+                        vertices[v as usize].1 = Some(t);
+                        v
+                    }
+                    Some(first) if first == t => v,
+                    Some(_) => *extra.entry((v, t)).or_insert_with(|| {
+                        vertices.push((v, Some(t)));
+                        (vertices.len() - 1) as u32
+                    }),
+                };
+            }
+            triangles.push(out);
+        }
+        Self {
+            vertices,
+            triangles,
+        }
+    }
 }
 
 /// The PLY header and binary body; inputs were checked by [`write_ply`].
-fn write_body<W: Write>(w: &mut W, mesh: &Mesh, positions: &[Point3<f64>]) -> io::Result<()> {
+fn write_body<W: Write>(
+    w: &mut W,
+    mesh: &Mesh,
+    positions: &[Point3<f64>],
+    split: &SeamSplit,
+) -> io::Result<()> {
     let has_uvs = mesh.has_uvs();
     write!(
         w,
         "ply\nformat binary_little_endian 1.0\ncomment written by helmcap\n\
-         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
-         element face {}\nproperty list uchar int vertex_indices\n",
-        positions.len(),
-        mesh.face_count()
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+        split.vertices.len()
     )?;
     if has_uvs {
-        w.write_all(b"property list uchar float texcoord\n")?;
+        w.write_all(b"property float s\nproperty float t\n")?;
     }
-    w.write_all(b"end_header\n")?;
-    for p in positions {
-        for c in p.iter() {
+    write!(
+        w,
+        "element face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        split.triangles.len()
+    )?;
+    for &(v, t) in &split.vertices {
+        for c in positions[v as usize].iter() {
             w.write_all(&(*c as f32).to_le_bytes())?;
         }
-    }
-    for f in 0..mesh.face_count() {
-        let corners = mesh.face(f);
-        // Lengths and indices were range-checked by `write_ply`.
-        w.write_all(&[corners.len() as u8])?;
-        for &v in corners {
-            w.write_all(&(v as i32).to_le_bytes())?;
-        }
         if has_uvs {
-            w.write_all(&[(2 * corners.len()) as u8])?;
-            for &t in mesh.face_uv(f) {
-                let uv = mesh.uvs[t as usize];
-                w.write_all(&(uv.x as f32).to_le_bytes())?;
-                w.write_all(&(uv.y as f32).to_le_bytes())?;
-            }
+            // A vertex on no face has no UV: (0, 0).
+            let uv = t
+                .and_then(|t| mesh.uvs.get(t as usize))
+                .copied()
+                .unwrap_or_default();
+            w.write_all(&(uv.x as f32).to_le_bytes())?;
+            w.write_all(&(uv.y as f32).to_le_bytes())?;
+        }
+    }
+    for tri in &split.triangles {
+        w.write_all(&[3u8])?;
+        for &v in tri {
+            // The count was range-checked by `write_ply`.
+            w.write_all(&(v as i32).to_le_bytes())?;
         }
     }
     Ok(())
 }
+
+/// Most items a list property of a PLY row may have (a face's corners).
+const MAX_LIST_ITEMS: f64 = 1000.0;
 
 /// Scalar types of PLY properties.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -178,6 +241,23 @@ struct PlyElement {
     name: String,
     count: usize,
     properties: Vec<PlyProperty>,
+    /// Header line of the element (for errors).
+    line: usize,
+}
+
+impl PlyElement {
+    /// Fewest bytes one row takes: binary, the scalars' sizes and the lists' counts; ASCII,
+    /// two per value (a digit and a separator).
+    fn min_row_bytes(&self, binary: bool) -> u64 {
+        self.properties
+            .iter()
+            .map(|p| match (binary, p.list_count) {
+                (true, Some(c)) => c.size() as u64,
+                (true, None) => p.scalar.size() as u64,
+                (false, _) => 2,
+            })
+            .sum()
+    }
 }
 
 /// Reads a PLY mesh (ASCII, binary little- or big-endian): the `vertex` element's `x y z`
@@ -226,29 +306,49 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
     }
     let mut format = None;
     let mut elements: Vec<PlyElement> = Vec::new();
+    let mut declared_rows = 0u64;
     for (i, line) in lines {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {
             ["format", f, _] => format = Some(f.to_string()),
-            ["element", n, c] => elements.push(PlyElement {
-                name: n.to_string(),
-                count: c
-                    .parse()
-                    .map_err(|_| parse(i + 1, format!("bad element count {c:?}")))?,
-                properties: Vec::new(),
-            }),
+            ["element", n, c] => {
+                let count: u64 = c.parse().map_err(|_| {
+                    parse(
+                        i + 1,
+                        format!("bad element count {}", crate::limits::quoted(c)),
+                    )
+                })?;
+                declared_rows = declared_rows.saturating_add(count);
+                if declared_rows > crate::limits::MAX_PLY_ROWS {
+                    return Err(parse(
+                        i + 1,
+                        format!(
+                            "element {} declares {count} rows; a PLY file may hold at most {} \
+                             rows in all",
+                            crate::limits::quoted(n),
+                            crate::limits::MAX_PLY_ROWS
+                        ),
+                    ));
+                }
+                elements.push(PlyElement {
+                    name: n.to_string(),
+                    count: count as usize,
+                    properties: Vec::new(),
+                    line: i + 1,
+                });
+            }
             ["property", "list", c, t, n] => {
                 let e = elements
                     .last_mut()
                     .ok_or_else(|| parse(i + 1, "property before any element".into()))?;
                 e.properties.push(PlyProperty {
                     name: n.to_string(),
-                    scalar: PlyScalar::parse(t)
-                        .ok_or_else(|| parse(i + 1, format!("unknown type {t:?}")))?,
-                    list_count: Some(
-                        PlyScalar::parse(c)
-                            .ok_or_else(|| parse(i + 1, format!("unknown type {c:?}")))?,
-                    ),
+                    scalar: PlyScalar::parse(t).ok_or_else(|| {
+                        parse(i + 1, format!("unknown type {}", crate::limits::quoted(t)))
+                    })?,
+                    list_count: Some(PlyScalar::parse(c).ok_or_else(|| {
+                        parse(i + 1, format!("unknown type {}", crate::limits::quoted(c)))
+                    })?),
                 });
             }
             ["property", t, n] => {
@@ -257,13 +357,19 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
                     .ok_or_else(|| parse(i + 1, "property before any element".into()))?;
                 e.properties.push(PlyProperty {
                     name: n.to_string(),
-                    scalar: PlyScalar::parse(t)
-                        .ok_or_else(|| parse(i + 1, format!("unknown type {t:?}")))?,
+                    scalar: PlyScalar::parse(t).ok_or_else(|| {
+                        parse(i + 1, format!("unknown type {}", crate::limits::quoted(t)))
+                    })?,
                     list_count: None,
                 });
             }
             [] | ["comment", ..] | ["obj_info", ..] => {}
-            _ => return Err(parse(i + 1, format!("unexpected header line {line:?}"))),
+            _ => {
+                return Err(parse(
+                    i + 1,
+                    format!("unexpected header line {}", crate::limits::quoted(line)),
+                ));
+            }
         }
     }
     let little = match format.as_deref() {
@@ -272,6 +378,35 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
         Some("binary_big_endian") => Some(false),
         other => return Err(parse(2, format!("unsupported format {other:?}"))),
     };
+    // Every element's rows must fit the bytes the file holds before any is read: a
+    // header cannot make the reader loop or allocate for rows that are not there.
+    let body_bytes = bytes.len().saturating_sub(body) as u64;
+    let mut needed = 0u64;
+    for e in &elements {
+        if e.properties.is_empty() && e.count > 0 {
+            return Err(parse(
+                e.line,
+                format!(
+                    "element {} declares {} rows but no property",
+                    crate::limits::quoted(&e.name),
+                    e.count
+                ),
+            ));
+        }
+        needed = needed
+            .saturating_add((e.count as u64).saturating_mul(e.min_row_bytes(little.is_some())));
+        if needed > body_bytes + 1 {
+            return Err(parse(
+                e.line,
+                format!(
+                    "element {} declares {} rows, more than the file's {body_bytes} bytes of \
+                     data can hold",
+                    crate::limits::quoted(&e.name),
+                    e.count
+                ),
+            ));
+        }
+    }
     // Reads the values of one element row: scalars as one-element lists.
     let mut positions = Vec::new();
     let mut polygons: Vec<Vec<u32>> = Vec::new();
@@ -283,16 +418,28 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
     } else {
         None
     };
-    let mut tokens = text_body.map(|t| t.split_whitespace());
+    // ASCII tokens with their 1-based file line (the header's lines come first).
+    let header_lines = 1 + bytes[..body.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count();
+    let mut tokens = text_body.map(|t| {
+        t.lines()
+            .enumerate()
+            .flat_map(move |(k, l)| l.split_whitespace().map(move |w| (header_lines + k, w)))
+    });
+    let mut last_line = header_lines;
     let mut offset = body;
-    let mut next_value = |scalar: PlyScalar| -> Result<f64, MeshError> {
+    let mut next_value = |scalar: PlyScalar| -> Result<(f64, usize), MeshError> {
         match (&mut tokens, little) {
             (Some(t), _) => {
-                let tok = t
+                let (line, tok) = t
                     .next()
-                    .ok_or_else(|| parse(0, "the body ends early".into()))?;
+                    .ok_or_else(|| parse(last_line, "the body ends early".into()))?;
+                last_line = line;
                 tok.parse::<f64>()
-                    .map_err(|_| parse(0, format!("bad number {tok:?}")))
+                    .map(|v| (v, line))
+                    .map_err(|_| parse(line, format!("bad number {}", crate::limits::quoted(tok))))
             }
             (None, Some(le)) => {
                 let size = scalar.size();
@@ -300,7 +447,7 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
                     .get(offset..offset + size)
                     .ok_or_else(|| parse(0, "the binary body ends early".into()))?;
                 offset += size;
-                Ok(scalar.decode(b, le))
+                Ok((scalar.decode(b, le), 0))
             }
             (None, None) => Err(parse(0, "no body".into())),
         }
@@ -312,17 +459,28 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
             .collect();
         for _ in 0..e.count {
             let mut row: Vec<Vec<f64>> = Vec::with_capacity(e.properties.len());
+            let mut row_line = 0;
             for p in &e.properties {
                 match p.list_count {
-                    None => row.push(vec![next_value(p.scalar)?]),
+                    None => {
+                        let (v, line) = next_value(p.scalar)?;
+                        row_line = line;
+                        row.push(vec![v]);
+                    }
                     Some(c) => {
-                        let k = next_value(c)?;
-                        if !(0.0..=1.0e6).contains(&k) {
-                            return Err(parse(0, format!("bad list length {k}")));
+                        let (k, line) = next_value(c)?;
+                        row_line = line;
+                        // A polygon of more than 1000 corners is no mesh face; the items
+                        // are read one by one (no allocation sized by the file).
+                        if !(0.0..=MAX_LIST_ITEMS).contains(&k) || k.fract() != 0.0 {
+                            return Err(parse(
+                                line,
+                                format!("bad list length {k} (0 to {MAX_LIST_ITEMS})"),
+                            ));
                         }
                         let mut items = Vec::with_capacity(k as usize);
                         for _ in 0..k as usize {
-                            items.push(next_value(p.scalar)?);
+                            items.push(next_value(p.scalar)?.0);
                         }
                         row.push(items);
                     }
@@ -332,7 +490,7 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
                 let mut c = [0.0; 3];
                 for (k, idx) in xyz.iter().enumerate() {
                     let idx =
-                        idx.ok_or_else(|| parse(0, "vertex element without x, y, z".into()))?;
+                        idx.ok_or_else(|| parse(e.line, "vertex element without x, y, z".into()))?;
                     c[k] = row[idx][0];
                 }
                 positions.push(Point3::new(c[0], c[1], c[2]));
@@ -341,12 +499,14 @@ pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
                     .properties
                     .iter()
                     .position(|p| p.name == "vertex_indices" || p.name == "vertex_index")
-                    .ok_or_else(|| parse(0, "face element without vertex_indices".into()))?;
+                    .ok_or_else(|| parse(e.line, "face element without vertex_indices".into()))?;
                 let poly = row[idx]
                     .iter()
                     .map(|&v| {
                         if v >= 0.0 && v <= u32::MAX as f64 && v.fract() == 0.0 {
                             Ok(v as u32)
+                        } else if row_line > 0 {
+                            Err(parse(row_line, format!("bad vertex index {v}")))
                         } else {
                             Err(MeshError::Invalid(format!("{name}: bad vertex index {v}")))
                         }
@@ -390,8 +550,8 @@ mod tests {
     struct Ply {
         header: Vec<String>,
         vertices: Vec<[f32; 3]>,
+        st: Vec<[f32; 2]>,
         faces: Vec<Vec<i32>>,
-        texcoords: Vec<Vec<f32>>,
     }
 
     fn read_back(path: &Path) -> Ply {
@@ -412,9 +572,7 @@ mod tests {
                 .parse()
                 .unwrap()
         };
-        let has_tex = header
-            .iter()
-            .any(|l| l == "property list uchar float texcoord");
+        let has_st = header.iter().any(|l| l == "property float s");
         let mut body = &bytes[body_start..];
         let mut take = |n: usize| {
             let (head, rest) = body.split_at(n);
@@ -422,14 +580,17 @@ mod tests {
             head.to_vec()
         };
         let f32_at = |b: &[u8]| f32::from_le_bytes(b.try_into().unwrap());
-        let vertices = (0..count("vertex"))
-            .map(|_| {
-                let b = take(12);
-                [f32_at(&b[0..4]), f32_at(&b[4..8]), f32_at(&b[8..12])]
-            })
-            .collect();
+        let mut vertices = Vec::new();
+        let mut st = Vec::new();
+        for _ in 0..count("vertex") {
+            let b = take(12);
+            vertices.push([f32_at(&b[0..4]), f32_at(&b[4..8]), f32_at(&b[8..12])]);
+            if has_st {
+                let b = take(8);
+                st.push([f32_at(&b[0..4]), f32_at(&b[4..8])]);
+            }
+        }
         let mut faces = Vec::new();
-        let mut texcoords = Vec::new();
         for _ in 0..count("face") {
             let n = take(1)[0] as usize;
             let b = take(4 * n);
@@ -438,27 +599,24 @@ mod tests {
                     .map(|c| i32::from_le_bytes(c.try_into().unwrap()))
                     .collect(),
             );
-            if has_tex {
-                let n = take(1)[0] as usize;
-                texcoords.push(take(4 * n).chunks(4).map(f32_at).collect());
-            }
         }
         assert!(body.is_empty(), "{} trailing bytes", body.len());
         Ply {
             header,
             vertices,
+            st,
             faces,
-            texcoords,
         }
     }
 
     #[test]
-    fn grid_with_uvs_reads_back() {
+    fn grid_with_uvs_reads_back_with_uvs_per_vertex_split_on_seams() {
         let mut mesh = grid(2, 0.5);
         // Give one corner of the last quad a different UV, as on a seam.
         mesh.uvs.push(Point2::new(0.25, 0.75));
         let last = mesh.face_uvs.len() - 1;
         mesh.face_uvs[last] = (mesh.uvs.len() - 1) as u32;
+        mesh.triangulate();
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("grid.ply");
         write_ply(&path, &mesh, None).unwrap();
@@ -466,24 +624,32 @@ mod tests {
 
         assert_eq!(ply.header[0], "ply");
         assert_eq!(ply.header[1], "format binary_little_endian 1.0");
-        assert!(ply.header.contains(&"element vertex 9".to_string()));
-        assert!(ply.header.contains(&"element face 4".to_string()));
-        assert_eq!(ply.vertices.len(), 9);
+        // 9 vertices, one of them twice (the seam corner); 4 quads as 8 triangles.
+        assert!(ply.header.contains(&"element vertex 10".to_string()));
+        assert!(ply.header.contains(&"element face 8".to_string()));
+        assert!(ply.header.contains(&"property float t".to_string()));
         for (v, p) in ply.vertices.iter().zip(&mesh.positions) {
             assert_eq!(*v, [p.x as f32, p.y as f32, p.z as f32]);
         }
         assert_eq!(ply.vertices[4], [0.5, 0.5, 0.0]);
-        for (f, face) in ply.faces.iter().enumerate() {
-            let expected: Vec<i32> = mesh.face(f).iter().map(|&v| v as i32).collect();
-            assert_eq!(*face, expected);
-            let uvs: Vec<f32> = mesh
-                .face_uv(f)
-                .iter()
-                .flat_map(|&t| [mesh.uvs[t as usize].x as f32, mesh.uvs[t as usize].y as f32])
-                .collect();
-            assert_eq!(ply.texcoords[f], uvs);
+        // Every triangle corner has its mesh vertex's position and its own UV.
+        assert_eq!(ply.faces.len(), mesh.triangles.len());
+        for ((face, tri), uv) in ply
+            .faces
+            .iter()
+            .zip(&mesh.triangles)
+            .zip(&mesh.triangle_uvs)
+        {
+            assert_eq!(face.len(), 3);
+            for k in 0..3 {
+                let w = face[k] as usize;
+                let p = mesh.positions[tri[k] as usize];
+                assert_eq!(ply.vertices[w], [p.x as f32, p.y as f32, p.z as f32]);
+                let t = mesh.uvs[uv[k] as usize];
+                assert_eq!(ply.st[w], [t.x as f32, t.y as f32]);
+            }
         }
-        assert_eq!(ply.texcoords[3][6..], [0.25, 0.75]);
+        assert!(ply.st.contains(&[0.25, 0.75]));
     }
 
     #[test]
@@ -494,8 +660,8 @@ mod tests {
         let path = dir.path().join("tet.ply");
         write_ply(&path, &mesh, Some(&moved)).unwrap();
         let ply = read_back(&path);
-        assert!(!ply.header.iter().any(|l| l.contains("texcoord")));
-        assert!(ply.texcoords.is_empty());
+        assert!(!ply.header.iter().any(|l| l.contains("property float s")));
+        assert!(ply.st.is_empty());
         assert_eq!(ply.vertices[3], [0.0, 0.0, 2.0]);
         assert_eq!(
             ply.faces,
@@ -504,7 +670,7 @@ mod tests {
     }
 
     #[test]
-    fn rejects_what_ply_cannot_hold() {
+    fn rejects_what_ply_cannot_hold_and_triangulates_big_polygons() {
         let mesh = tetrahedron();
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bad.ply");
@@ -522,11 +688,109 @@ mod tests {
             })
             .collect();
         let disc = Mesh::new(ring, &[(0..256).collect()], Vec::new(), None).unwrap();
-        let err = write_ply(&path, &disc, None).unwrap_err();
-        assert!(err.to_string().contains("256 corners"), "{err}");
-        assert!(!path.exists());
+        write_ply(&path, &disc, None).unwrap();
+        assert_eq!(read_back(&path).faces.len(), 254);
         let err = write_ply(&dir.path().join("missing/bad.ply"), &mesh, None).unwrap_err();
         assert!(matches!(err, MeshError::Io { .. }), "{err}");
+    }
+
+    /// Reproducers of the hardening issue: headers that declare huge element counts are
+    /// refused before a row is read (one with no properties used to loop forever), and
+    /// ASCII errors name the line.
+    #[test]
+    fn huge_declared_counts_are_refused_at_once_and_ascii_errors_name_the_line() {
+        let t = std::time::Instant::now();
+        let junk = "ply\nformat ascii 1.0\nelement junk 1000000000000000000\nend_header\n";
+        let e = read_ply_bytes(junk.as_bytes(), "j.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("j.ply:3: element \"junk\" declares"), "{e}");
+        let empty_props = "ply\nformat binary_little_endian 1.0\nelement junk 5\nelement vertex 1\n\
+                           property float x\nproperty float y\nproperty float z\nend_header\n";
+        let e = read_ply_bytes(empty_props.as_bytes(), "j.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no property"), "{e}");
+        let many = "ply\nformat binary_little_endian 1.0\nelement vertex 100000000\n\
+                    property float x\nproperty float y\nproperty float z\nend_header\n\0\0";
+        let e = read_ply_bytes(many.as_bytes(), "m.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("more than the file's 2 bytes"), "{e}");
+        let over =
+            "ply\nformat ascii 1.0\nelement vertex 200000000\nproperty float x\nend_header\n";
+        let e = read_ply_bytes(over.as_bytes(), "o.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("at most 100000000 rows"), "{e}");
+        assert!(t.elapsed().as_secs_f64() < 1.0);
+        let bad = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+                   property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+                   end_header\n0 0 0\n1 zero 0\n3 0 1 1\n";
+        let e = read_ply_bytes(bad.as_bytes(), "b.ply")
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "b.ply:11: bad number \"zero\"");
+        let long = format!(
+            "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n\
+             property float z\nend_header\n0 {} 0\n",
+            "9".repeat(100) + &"x".repeat(1_000_000)
+        );
+        let e = read_ply_bytes(long.as_bytes(), "l.ply")
+            .unwrap_err()
+            .to_string();
+        assert!(e.len() < 200, "{}", e.len());
+    }
+
+    /// trimesh (the project's Python environment, when installed) reads a PLY of quads and
+    /// triangles with UVs: every face a triangle, one UV per vertex, the seam split.
+    #[test]
+    fn trimesh_reads_mixed_polygons_and_uvs() {
+        let env = std::env::var("HELMCAP_PYTHON_ENV")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|_| {
+                std::path::PathBuf::from(std::env::var("HOME").unwrap_or_default())
+                    .join(".cache/helmcap-python")
+            });
+        let python = env.join("bin/python");
+        let probe = std::process::Command::new(&python)
+            .args(["-c", "import trimesh"])
+            .output();
+        if !probe.is_ok_and(|o| o.status.success()) {
+            println!(
+                "skipping the trimesh check: no trimesh in {}",
+                env.display()
+            );
+            return;
+        }
+        let mesh = crate::mesh::read_obj_str(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\n\
+             vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.5 0.5\nvt 0.9 0.1\n\
+             f 1/1 2/2 3/3 4/4\nf 2/6 5/5 3/3\n",
+            "m.obj",
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.ply");
+        write_ply(&path, &mesh, None).unwrap();
+        let script = format!(
+            "import trimesh\nm = trimesh.load({:?}, process=False)\n\
+             print(len(m.vertices), len(m.faces), m.visual.uv.shape[0], \
+             round(float(m.visual.uv[5][0]), 3), round(float(m.visual.uv[5][1]), 3))\n",
+            path.to_str().unwrap()
+        );
+        let out = std::process::Command::new(&python)
+            .args(["-c", &script])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // 5 vertices + vertex 2 again with the other quad's UV; 1 quad + 1 triangle = 3
+        // triangles; the extra vertex carries UV 6 (0.9, 0.1).
+        assert_eq!(String::from_utf8_lossy(&out.stdout).trim(), "6 3 6 0.9 0.1");
     }
 
     #[test]
@@ -536,7 +800,7 @@ mod tests {
         let m = grid(4, 1.5);
         write_ply(&path, &m, None).unwrap();
         let back = read_ply(&path).unwrap();
-        assert_eq!(back.face_vertices, m.face_vertices);
+        assert_eq!(back.triangles, m.triangles);
         for (a, b) in back.positions.iter().zip(&m.positions) {
             assert!((a - b).norm() < 1e-5);
         }

@@ -178,6 +178,34 @@ pub struct AccuracyMetrics {
     pub mesh_max_mm: f64,
 }
 
+/// Plausibility warnings of a take: things that are not errors but usually mean a wrong
+/// setup, counted (and logged once each) rather than stopping the take.
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+pub struct PlausibilityWarnings {
+    /// Marker-frames whose bundle lies farther than [`MAX_FACE_EXTENT_MM`] from the head
+    /// frame's origin (wrong calibration units, a bad triangulation).
+    pub bundles_far_outside_face: u64,
+    /// Frames whose solved mesh has a vertex farther than [`MAX_FACE_EXTENT_MM`] from the
+    /// origin.
+    pub meshes_far_outside_face: u64,
+    /// The take's first [`NO_LABEL_WARNING_SECS`] seconds labeled no marker at all: the
+    /// cameras are probably swapped, the same camera twice, or not the calibration's.
+    pub nothing_labeled_at_start: bool,
+    /// Frames whose timecode equals the previous frame's (sync lines not locked to the
+    /// cameras' trigger).
+    pub timecode_repeats: u64,
+    /// Frames whose timecode runs more frames ahead of the previous frame's than the frame
+    /// indices do, or runs backwards.
+    pub timecode_jumps: u64,
+}
+
+/// A face in the head frame fits well inside a sphere of this radius, mm: farther
+/// bundles or mesh vertices are counted as implausible.
+pub const MAX_FACE_EXTENT_MM: f64 = 1_000.0;
+
+/// Seconds at the start of a take after which "no marker labeled yet" is warned about.
+pub const NO_LABEL_WARNING_SECS: f64 = 2.0;
+
 /// Everything `metrics.json` holds.
 #[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Metrics {
@@ -207,6 +235,9 @@ pub struct Metrics {
     pub accuracy: Option<AccuracyMetrics>,
     /// Why the take stopped early (a stage error or an interruption), if it did.
     pub stopped: Option<String>,
+    /// Plausibility warnings (see [`PlausibilityWarnings`]).
+    #[serde(default)]
+    pub warnings: PlausibilityWarnings,
 }
 
 /// Accumulates [`Metrics`] frame by frame (in the sink thread).
@@ -223,6 +254,11 @@ pub struct MetricsCollector {
     mesh_sum: f64,
     mesh_count: u64,
     solves_meshes: bool,
+    /// Index and timecode of the previous frame out.
+    previous_tc: Option<(usize, Timecode)>,
+    /// Frames out so far without any observed marker, while none had one.
+    unlabeled_start_frames: u64,
+    any_labeled: bool,
 }
 
 impl MetricsCollector {
@@ -314,6 +350,99 @@ impl MetricsCollector {
                     acc.mesh_max_mm = acc.mesh_max_mm.max(e);
                 }
             }
+        }
+        self.check_plausibility(frame);
+    }
+
+    /// Counts the plausibility warnings of one frame (see [`PlausibilityWarnings`]).
+    fn check_plausibility(&mut self, frame: &FrameResult) {
+        let w = &mut self.metrics.warnings;
+        let far = |p: &nalgebra::Point3<f64>| {
+            !(p.coords.norm() <= MAX_FACE_EXTENT_MM) // NaN counts as far too
+        };
+        let far_bundles = frame
+            .markers
+            .iter()
+            .filter(|r| {
+                r.status == BundleStatus::Observed && r.point_in_head.is_some_and(|p| far(&p))
+            })
+            .count() as u64;
+        if far_bundles > 0 && w.bundles_far_outside_face == 0 {
+            tracing::warn!(
+                "frame {}: {far_bundles} bundles farther than {MAX_FACE_EXTENT_MM} mm from the head \
+                 frame's origin (calibration units?); counted in metrics.json",
+                frame.index
+            );
+        }
+        w.bundles_far_outside_face += far_bundles;
+        if let Some(mesh) = &frame.mesh
+            && mesh.iter().any(far)
+        {
+            if w.meshes_far_outside_face == 0 {
+                tracing::warn!(
+                    "frame {}: the solved mesh reaches farther than {MAX_FACE_EXTENT_MM} mm; \
+                     counted in metrics.json",
+                    frame.index
+                );
+            }
+            w.meshes_far_outside_face += 1;
+        }
+        if !self.any_labeled {
+            if frame.count(BundleStatus::Observed) > 0 {
+                self.any_labeled = true;
+            } else {
+                self.unlabeled_start_frames += 1;
+                let fps = self.metrics.source_fps;
+                if !w.nothing_labeled_at_start
+                    && fps > 0.0
+                    && self.unlabeled_start_frames as f64 >= NO_LABEL_WARNING_SECS * fps
+                {
+                    w.nothing_labeled_at_start = true;
+                    tracing::warn!(
+                        "no marker labeled in the first {NO_LABEL_WARNING_SECS} s: are the \
+                         cameras swapped, the same camera twice, or not the calibration's?"
+                    );
+                }
+            }
+        }
+        if let Some(tc) = frame.timecode {
+            if let Some((prev_index, prev)) = self.previous_tc
+                && prev.rate == tc.rate
+            {
+                let k = i64::from(tc.subframes.max(1));
+                let at = |t: &Timecode| t.frame_count as i64 * k + i64::from(t.subframe);
+                let step = at(&tc) - at(&prev);
+                let frames = (frame.index as i64 - prev_index as i64).max(1);
+                // A whole day of timecode wraps at midnight.
+                let day = tc.rate.frames_per_day() as i64 * k;
+                let step = if step < -day / 2 { step + day } else { step };
+                // Every camera frame has its own label with sub-frames, or when the camera
+                // runs at the timecode rate; else (60 fps on 24 fps code) labels repeat.
+                let fps = self.metrics.source_fps;
+                let unique = tc.subframes > 1 || (fps - tc.rate.fps()).abs() <= 0.01 * fps;
+                if unique && step == 0 && tc.subframes == prev.subframes {
+                    if w.timecode_repeats == 0 {
+                        tracing::warn!(
+                            "frame {}: timecode {} repeats the previous frame's (sync not \
+                             locked to the cameras?); counted in metrics.json",
+                            frame.index,
+                            tc.to_string_with_rate()
+                        );
+                    }
+                    w.timecode_repeats += 1;
+                } else if unique && (step < 0 || step > frames) {
+                    if w.timecode_jumps == 0 {
+                        tracing::warn!(
+                            "frame {}: timecode jumps from {} to {}; counted in metrics.json",
+                            frame.index,
+                            prev.to_string_with_rate(),
+                            tc.to_string_with_rate()
+                        );
+                    }
+                    w.timecode_jumps += 1;
+                }
+            }
+            self.previous_tc = Some((frame.index, tc));
         }
     }
 

@@ -217,6 +217,12 @@ pub fn run(
         .map_err(|e| config_err(e.to_string()))?;
     let stabilizer = Stabilizer::new(&layout, neutral_markers_head.to_vec(), stabilize)
         .map_err(|e| config_err(e.to_string()))?;
+    if channel_capacity > crate::limits::MAX_QUEUE_FRAMES {
+        return Err(config_err(format!(
+            "a channel capacity of {channel_capacity} frames is above the limit of {}",
+            crate::limits::MAX_QUEUE_FRAMES
+        )));
+    }
     let capacity = channel_capacity.max(1);
     let fps = source.fps();
     let live = source.is_live();

@@ -29,10 +29,15 @@
 //!   range. At 60 fps 65,535 frames are 18 minutes; the float count is exact to 16.7
 //!   million frames (77 hours).
 //!
-//! The data goes to a temporary file as frames arrive; [`Sink::finish`] writes header and
-//! parameters and publishes the file atomically.
+//! The file is written in place as frames arrive: a temporary file beside `bundles.c3d`
+//! starts with the header block and room for the parameter section (sized at the start
+//! for the worst case: a long take with timecode), then the frames; after every frame the
+//! data is padded to a block boundary and marked complete. [`Sink::finish`] writes header
+//! and parameters into their room and publishes the file atomically. No step needs more
+//! disk space than the frames themselves: when a write fails (disk full), the file is cut
+//! back to the last complete frame and published with the frames before it.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use super::staged_file::StagedFile;
@@ -185,6 +190,13 @@ pub struct C3dSink {
     first_frame: Option<usize>,
     next_frame: usize,
     first_timecode: Option<(usize, Timecode)>,
+    /// Parameter blocks reserved after the header.
+    param_blocks: usize,
+    /// Bytes of frame data written (complete frames), not counting the padding.
+    data_len: u64,
+    /// `first_frame`, `next_frame`, `first_timecode` and `data_len` of the complete frames
+    /// (for a roll-back).
+    complete: (Option<usize>, usize, Option<(usize, Timecode)>, u64),
 }
 
 impl C3dSink {
@@ -199,7 +211,53 @@ impl C3dSink {
             first_frame: None,
             next_frame: 0,
             first_timecode: None,
+            param_blocks: 0,
+            data_len: 0,
+            complete: (None, 0, None, 0),
         }
+    }
+
+    /// Byte offset of the 3D data: the header block and the reserved parameter blocks.
+    fn data_start(&self) -> u64 {
+        512 * (1 + self.param_blocks as u64)
+    }
+
+    /// Pads the data to a block boundary with zeros and marks it complete; the writer then
+    /// stands at the end of the data again (the next frame overwrites the padding).
+    fn pad_and_mark(&mut self) -> Result<(), SinkError> {
+        let data_end = self.data_start() + self.data_len;
+        let pad = (data_end.div_ceil(512) * 512 - data_end) as usize;
+        let data = self
+            .data
+            .as_mut()
+            .ok_or_else(|| SinkError::Other("c3d sink written before begin".into()))?;
+        data.write_with(|w| w.write_all(&vec![0u8; pad]))?;
+        data.mark_complete()?;
+        data.write_with(|w| w.seek(SeekFrom::Start(data_end)).map(drop))
+    }
+
+    /// After a failed write: back to the last complete frame (padding rewritten).
+    fn roll_back(&mut self) -> Result<(), SinkError> {
+        (
+            self.first_frame,
+            self.next_frame,
+            self.first_timecode,
+            self.data_len,
+        ) = self.complete;
+        let data_end = self.data_start() + self.data_len;
+        let data = self
+            .data
+            .as_mut()
+            .ok_or_else(|| SinkError::Other("c3d sink written before begin".into()))?;
+        data.roll_back()?;
+        let complete = data.complete_len().unwrap_or(0);
+        // The padding's bytes exist on disk (no new space): zero them again.
+        data.write_with(|w| {
+            w.seek(SeekFrom::Start(data_end))?;
+            w.write_all(&vec![0u8; complete.saturating_sub(data_end) as usize])?;
+            w.flush()?;
+            w.seek(SeekFrom::Start(data_end)).map(drop)
+        })
     }
 
     fn invalid_frame(&self) -> Vec<u8> {
@@ -235,13 +293,67 @@ impl Sink for C3dSink {
         }
         self.fps = session.fps;
         self.focal_px = session.rig.as_ref().map_or(f64::NAN, |r| r.cam0.fx());
-        let mut data_path = self.path.clone().into_os_string();
-        data_path.push(".data");
-        self.data = Some(StagedFile::create(Path::new(&data_path))?);
-        Ok(())
+        // Room for the parameters: their size without the optional ones, plus one block
+        // for LONG_FRAMES and the TIMECODE group (a few hundred bytes).
+        // (`base` is the header block and the parameter blocks: one block more than those.)
+        let base = self.header_and_params(0)?;
+        self.param_blocks = base.len() / 512;
+        let mut data = StagedFile::create(&self.path)?;
+        let start = vec![0u8; 512 * (1 + self.param_blocks)];
+        data.write_with(|w| w.write_all(&start))?;
+        self.data = Some(data);
+        self.data_len = 0;
+        self.pad_and_mark()
     }
 
     fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        let result = self.append(f).and_then(|()| self.pad_and_mark());
+        match result {
+            Ok(()) => {
+                self.complete = (
+                    self.first_frame,
+                    self.next_frame,
+                    self.first_timecode,
+                    self.data_len,
+                );
+                Ok(())
+            }
+            Err(e) => {
+                if let Err(r) = self.roll_back() {
+                    tracing::error!(
+                        "{}: cannot go back to the last frame: {r}",
+                        self.path.display()
+                    );
+                    // Unpublishable: dropping the staged file removes it.
+                    self.data = None;
+                }
+                Err(e)
+            }
+        }
+    }
+
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        let Some(mut data) = self.data.take() else {
+            return Ok(());
+        };
+        let head = self.header_and_params(self.param_blocks)?;
+        // Header and parameters go into their reserved room: no new space is needed.
+        let written = data.write_with(|w| {
+            w.seek(SeekFrom::Start(0))?;
+            w.write_all(&head)
+        });
+        if written.is_err() {
+            // The reserved room exists on disk; a failure here is a failing device.
+            data.roll_back()?;
+        }
+        written?;
+        data.commit()
+    }
+}
+
+impl C3dSink {
+    /// Appends frame `f` (and empty frames for a gap before it) to the data.
+    fn append(&mut self, f: &FrameResult) -> Result<(), SinkError> {
         if self.first_frame.is_none() {
             self.first_frame = Some(f.index);
             self.next_frame = f.index;
@@ -259,11 +371,32 @@ impl Sink for C3dSink {
                 "C3D frame numbers end at {MAX_FRAME}; split the take (--frames)"
             )));
         }
-        let gap = self.invalid_frame();
-        let mut bytes = Vec::new();
-        for _ in self.next_frame..f.index {
-            bytes.extend(&gap);
+        let missing = (f.index - self.next_frame) as u64;
+        if missing > crate::limits::MAX_FRAME_GAP {
+            return Err(SinkError::Other(format!(
+                "frame {} follows frame {}: a gap of {missing} frames is above the limit of {} \
+                 (C3D would fill it with empty frames)",
+                f.index,
+                self.next_frame.saturating_sub(1),
+                crate::limits::MAX_FRAME_GAP
+            )));
         }
+        // Missing frames are streamed one by one: a gap never sits in memory whole.
+        if missing > 0 {
+            let gap = self.invalid_frame();
+            let data = self
+                .data
+                .as_mut()
+                .ok_or_else(|| SinkError::Other("c3d sink written before begin".into()))?;
+            data.write_with(|w| {
+                for _ in 0..missing {
+                    w.write_all(&gap)?;
+                }
+                Ok(())
+            })?;
+            self.data_len += missing * gap.len() as u64;
+        }
+        let mut bytes = Vec::with_capacity(f.markers.len() * 16);
         for r in &f.markers {
             let (p, word) = match (r.status, r.point_in_head) {
                 (BundleStatus::Observed, Some(p)) => {
@@ -290,25 +423,16 @@ impl Sink for C3dSink {
             self.first_timecode.get_or_insert((f.index, tc));
         }
         self.next_frame = f.index + 1;
+        self.data_len += bytes.len() as u64;
         match &mut self.data {
             Some(d) => d.write_with(|w| w.write_all(&bytes)),
             None => Err(SinkError::Other("c3d sink written before begin".into())),
         }
     }
 
-    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
-        let Some(data) = self.data.take() else {
-            return Ok(());
-        };
-        let data_path = data.close_temp()?;
-        let result = self.assemble(&data_path);
-        let _ = std::fs::remove_file(&data_path);
-        result
-    }
-}
-
-impl C3dSink {
-    fn assemble(&self, data_path: &Path) -> Result<(), SinkError> {
+    /// The header block and the parameter section for the frames written so far, the
+    /// parameters padded to at least `min_param_blocks` blocks.
+    fn header_and_params(&self, min_param_blocks: usize) -> Result<Vec<u8>, SinkError> {
         let points = self.labels.len();
         let first = self.first_frame.unwrap_or(0) + 1;
         let frames = self.first_frame.map_or(0, |f| self.next_frame - f);
@@ -456,10 +580,23 @@ impl C3dSink {
             p.bytes()
         };
         let sized = build(0).map_err(other)?;
-        let data_start = 2 + sized.len() / 512;
+        let param_blocks = (sized.len() / 512).max(min_param_blocks);
+        let data_start = 2 + param_blocks;
         let data_start16 =
             u16::try_from(data_start).map_err(|_| other("parameters too large".into()))?;
-        let params = build(data_start16).map_err(other)?;
+        let mut params = build(data_start16).map_err(other)?;
+        if params.len() / 512 < param_blocks {
+            // Padded to the reserved room; the section header counts its blocks.
+            params.resize(param_blocks * 512, 0);
+            params[2] =
+                u8::try_from(param_blocks).map_err(|_| other("too many parameters".into()))?;
+        }
+        if params.len() / 512 != param_blocks {
+            return Err(other(format!(
+                "the parameters need {} blocks, {param_blocks} were reserved",
+                params.len() / 512
+            )));
+        }
         let mut header = vec![0u8; 512];
         header[0] = 2;
         header[1] = 0x50;
@@ -472,28 +609,8 @@ impl C3dSink {
         header[16..18].copy_from_slice(&data_start16.to_le_bytes());
         header[18..20].copy_from_slice(&0u16.to_le_bytes());
         header[20..24].copy_from_slice(&rate.to_le_bytes());
-        let mut out = StagedFile::create(&self.path)?;
-        let data = std::fs::File::open(data_path).map_err(|e| SinkError::io(data_path, e))?;
-        out.write_with(|w| {
-            w.write_all(&header)?;
-            w.write_all(&params)?;
-            let mut reader = BufReader::with_capacity(1 << 16, data);
-            let mut written = 0usize;
-            loop {
-                let buf = reader.fill_buf()?;
-                if buf.is_empty() {
-                    break;
-                }
-                w.write_all(buf)?;
-                written += buf.len();
-                let n = buf.len();
-                reader.consume(n);
-            }
-            // The data section ends on a block boundary.
-            let pad = written.div_ceil(512) * 512 - written;
-            w.write_all(&vec![0u8; pad])
-        })?;
-        out.commit()
+        header.extend(params);
+        Ok(header)
     }
 }
 
@@ -609,6 +726,53 @@ mod tests {
         let c3d = c3dio::C3d::load(path.to_str().unwrap()).expect("c3dio reads it");
         assert_eq!(c3d.points.rows(), 40_000);
         assert_eq!(f64::from(c3d.points[39_999][0].point[0]), 109_999.0);
+    }
+
+    /// A write that fails halfway through a frame (disk full) leaves the file at the last
+    /// complete frame, and it is published that way.
+    #[test]
+    fn a_failed_frame_is_cut_and_the_rest_published() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bundles.c3d");
+        let mut sink = C3dSink::new(&path);
+        sink.begin(&session(3)).unwrap();
+        for index in 3..8 {
+            sink.write(&frame(index)).unwrap();
+        }
+        // What a failing write leaves: part of a frame in the file, none of it marked.
+        sink.data
+            .as_mut()
+            .unwrap()
+            .write_with(|w| w.write_all(&[0x55; 700]))
+            .unwrap();
+        sink.next_frame = 9;
+        sink.roll_back().unwrap();
+        sink.finish(&Metrics::default()).unwrap();
+        let c3d = c3dio::C3d::load(path.to_str().unwrap()).expect("c3dio reads it");
+        assert_eq!(c3d.points.rows(), 5);
+        assert_eq!(f64::from(c3d.points[4][0].point[0]), 7.0);
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(bytes.len() % 512, 0);
+        assert!(
+            bytes[bytes.len() - 100..].iter().all(|&b| b == 0),
+            "padding zeroed"
+        );
+    }
+
+    /// Frames 0, 1 and 16777215 (the issue's frames.csv): the gap is refused without
+    /// allocating it.
+    #[test]
+    fn a_huge_gap_is_an_error_not_an_allocation() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut sink = C3dSink::new(&dir.path().join("bundles.c3d"));
+        sink.begin(&session(0)).unwrap();
+        sink.write(&frame(0)).unwrap();
+        sink.write(&frame(1)).unwrap();
+        let err = sink.write(&frame(16_777_215)).unwrap_err().to_string();
+        assert!(err.contains("a gap of 16777213 frames"), "{err}");
+        sink.finish(&Metrics::default()).unwrap();
+        let c3d = c3dio::C3d::load(dir.path().join("bundles.c3d").to_str().unwrap()).unwrap();
+        assert_eq!(c3d.points.rows(), 2);
     }
 
     #[test]

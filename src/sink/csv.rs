@@ -9,9 +9,11 @@
 //!   mm; `source` is `estimated` or `held`; frames without a pose have no row.
 //! - `tracks.csv`: `frame,camera,marker,u,v`: the labeled 2D detections, pixels.
 //!
-//! Each file is written as frames arrive and published atomically at the end.
+//! Each file is written as frames arrive and published atomically at the end. A frame is
+//! complete when all three files hold it; when a write fails (disk full), the files are cut
+//! back to the last complete frame and published that way (see [`StagedFile`]).
 
-use std::io::Write;
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -52,12 +54,56 @@ impl Sink for CsvSink {
         pose.write_with(|w| writeln!(w, "frame,qw,qx,qy,qz,tx,ty,tz,source,timecode"))?;
         let mut tracks = StagedFile::create(&self.dir.join("tracks.csv"))?;
         tracks.write_with(|w| writeln!(w, "frame,camera,marker,u,v"))?;
+        for f in [&mut bundles, &mut pose, &mut tracks] {
+            f.mark_complete()?;
+        }
         self.files = Some([bundles, pose, tracks]);
         self.layout = Some(session.layout.clone());
         Ok(())
     }
 
     fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        let result = self.write_frame(f);
+        if let Some(files) = &mut self.files {
+            if result.is_ok() {
+                // Flush all three, then mark all three: a frame counts only when every
+                // file holds it.
+                let flushed = files.iter_mut().try_for_each(StagedFile::flush);
+                if flushed.is_ok() {
+                    for file in files.iter_mut() {
+                        file.mark_complete()?;
+                    }
+                    return Ok(());
+                }
+                for file in files.iter_mut() {
+                    file.roll_back()?;
+                }
+                return flushed;
+            }
+            for file in files.iter_mut() {
+                file.roll_back()?;
+            }
+        }
+        result
+    }
+
+    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
+        let mut first_error = None;
+        if let Some(files) = self.files.take() {
+            for f in files {
+                // Every file is published even when another one failed.
+                if let Err(e) = f.commit() {
+                    first_error.get_or_insert(e);
+                }
+            }
+        }
+        first_error.map_or(Ok(()), Err)
+    }
+}
+
+impl CsvSink {
+    /// Writes one frame's rows (buffered; [`Sink::write`] makes them complete).
+    fn write_frame(&mut self, f: &FrameResult) -> Result<(), SinkError> {
         let (Some([bundles, pose, tracks]), Some(layout)) = (&mut self.files, &self.layout) else {
             return Err(SinkError::Other("csv sink written before begin".into()));
         };
@@ -122,28 +168,26 @@ impl Sink for CsvSink {
             Ok(())
         })
     }
-
-    fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
-        if let Some(files) = self.files.take() {
-            for f in files {
-                f.commit()?;
-            }
-        }
-        Ok(())
-    }
 }
 
-/// Writes `metrics.json` atomically at the end of the take.
+/// Writes `metrics.json` atomically at the end of the take. Its room on disk is taken at
+/// the start ([`METRICS_RESERVE_BYTES`] blanks in the temporary file), so a take that
+/// fails because the disk is full still gets its metrics.
 #[derive(Debug)]
 pub struct MetricsSink {
     path: PathBuf,
+    file: Option<StagedFile>,
 }
+
+/// Bytes reserved for `metrics.json` at the start of a take (a take's metrics are a few KB).
+pub const METRICS_RESERVE_BYTES: usize = 16 * 1024;
 
 impl MetricsSink {
     /// A sink writing `path` (usually `<out>/metrics.json`).
     pub fn new(path: &Path) -> Self {
         Self {
             path: path.to_path_buf(),
+            file: None,
         }
     }
 }
@@ -157,6 +201,10 @@ impl Sink for MetricsSink {
         if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| SinkError::io(dir, e))?;
         }
+        let mut file = StagedFile::create(&self.path)?;
+        file.write_with(|w| w.write_all(&[b' '; METRICS_RESERVE_BYTES]))?;
+        file.mark_complete()?;
+        self.file = Some(file);
         Ok(())
     }
 
@@ -167,10 +215,22 @@ impl Sink for MetricsSink {
     fn finish(&mut self, metrics: &Metrics) -> Result<(), SinkError> {
         let text = serde_json::to_string_pretty(metrics)
             .map_err(|e| SinkError::Other(format!("metrics: {e}")))?;
-        crate::atomic_file::write_atomically(&self.path, |w| {
+        let Some(mut file) = self.file.take() else {
+            return crate::atomic_file::write_atomically(&self.path, |w| {
+                w.write_all(text.as_bytes())?;
+                w.write_all(b"\n")
+            })
+            .map_err(|e| SinkError::io(&self.path, e));
+        };
+        // Into the reserved room, then cut to the JSON's length.
+        file.write_with(|w| {
+            w.seek(SeekFrom::Start(0))?;
             w.write_all(text.as_bytes())?;
-            w.write_all(b"\n")
-        })
-        .map_err(|e| SinkError::io(&self.path, e))
+            w.write_all(b"\n")?;
+            w.flush()?;
+            let len = w.get_mut().stream_position()?;
+            w.get_mut().set_len(len)
+        })?;
+        file.commit()
     }
 }

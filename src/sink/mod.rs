@@ -12,6 +12,7 @@ pub mod csv;
 pub mod mesh;
 pub mod rerun;
 pub mod staged_file;
+pub mod take_dir;
 pub mod usd;
 pub mod usd_read;
 
@@ -20,5 +21,6 @@ pub use csv::{CsvSink, MetricsSink};
 pub use mesh::{MeshFormat, MeshSequenceSink};
 pub use rerun::{RerunParams, RerunSink, RerunSinkError, RerunTarget};
 pub use staged_file::StagedFile;
+pub use take_dir::{TakeDir, TakeDirError};
 pub use usd::UsdSink;
 pub use usd_read::{UsdMeshSequence, UsdReadError, read_usda_sequence};

@@ -3,9 +3,17 @@
 //! renames it into place. Until then the destination keeps its previous content (or does
 //! not exist), so a reader never sees a half-written file; dropping an uncommitted file
 //! removes the temporary.
+//!
+//! # Complete data only
+//! A sink that writes frame by frame calls [`StagedFile::mark_complete`] after each frame:
+//! the data is flushed to the file and its length remembered. When a later write fails
+//! (disk full, an I/O error), [`StagedFile::roll_back`] cuts the file back to that length,
+//! and [`StagedFile::commit`] does so by itself when the final flush fails: the published
+//! file then holds every complete frame and nothing half-written, and the space of the
+//! dropped bytes is free again for the other outputs of the take.
 
 use std::fs::{File, OpenOptions};
-use std::io::{self, BufWriter, Write};
+use std::io::{self, BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use crate::pipeline::SinkError;
@@ -16,6 +24,8 @@ pub struct StagedFile {
     path: PathBuf,
     temp: PathBuf,
     writer: Option<BufWriter<File>>,
+    /// Length of the complete data (see the module docs); None: never marked.
+    complete_len: Option<u64>,
 }
 
 impl StagedFile {
@@ -43,7 +53,56 @@ impl StagedFile {
             path: path.to_path_buf(),
             temp,
             writer: Some(BufWriter::with_capacity(1 << 16, file)),
+            complete_len: None,
         })
+    }
+
+    /// Marks everything written so far as complete: flushes it to the file and remembers
+    /// the file's length (the position of the writer).
+    ///
+    /// # Errors
+    /// [`SinkError::Io`] naming the destination when the flush fails (nothing is marked:
+    /// call [`StagedFile::roll_back`]).
+    pub fn mark_complete(&mut self) -> Result<(), SinkError> {
+        let path = self.path.clone();
+        let w = self.writer()?;
+        w.flush().map_err(|e| SinkError::io(&path, e))?;
+        let len = w
+            .get_mut()
+            .stream_position()
+            .map_err(|e| SinkError::io(&path, e))?;
+        self.complete_len = Some(len);
+        Ok(())
+    }
+
+    /// Length of the data marked complete, if any was.
+    pub fn complete_len(&self) -> Option<u64> {
+        self.complete_len
+    }
+
+    /// Drops everything written after the last [`StagedFile::mark_complete`] (buffered or
+    /// already in the file) and puts the writer at the end of the complete data. The
+    /// bytes after it on disk are freed.
+    ///
+    /// # Errors
+    /// [`SinkError::Io`] naming the temporary file when it cannot be cut;
+    /// [`SinkError::Other`] when nothing was ever marked complete.
+    pub fn roll_back(&mut self) -> Result<(), SinkError> {
+        let len = self.complete_len.ok_or_else(|| {
+            SinkError::Other(format!("{}: no complete data to keep", self.path.display()))
+        })?;
+        let w = self.writer.take().ok_or_else(|| {
+            SinkError::Other(format!("{} is already closed", self.path.display()))
+        })?;
+        // The buffered bytes are the incomplete frame's: dropped, never written.
+        let (mut file, _dropped) = w.into_parts();
+        let temp = self.temp.clone();
+        let result = file
+            .set_len(len)
+            .and_then(|()| file.seek(SeekFrom::Start(len)).map(drop));
+        // Keep the file open either way so that `Drop` still removes the temporary.
+        self.writer = Some(BufWriter::with_capacity(1 << 16, file));
+        result.map_err(|e| SinkError::io(temp, e))
     }
 
     /// The destination.
@@ -95,7 +154,24 @@ impl StagedFile {
     ///
     /// # Errors
     /// [`SinkError::Io`] naming the destination; the temporary is removed.
+    ///
+    /// When the flush fails and data was marked complete ([`StagedFile::mark_complete`]),
+    /// the file is cut back to the complete data and published all the same; the error is
+    /// still returned (it says what was kept).
     pub fn commit(mut self) -> Result<(), SinkError> {
+        let flushed = match self.writer.as_mut() {
+            None => return Ok(()),
+            Some(w) => w.flush(),
+        };
+        let mut kept_after = None;
+        if let Err(e) = flushed {
+            if self.complete_len.is_none() || self.roll_back().is_err() {
+                let _ = std::fs::remove_file(&self.temp);
+                self.writer = None;
+                return Err(SinkError::io(&self.path, e));
+            }
+            kept_after = Some(e);
+        }
         let Some(w) = self.writer.take() else {
             return Ok(());
         };
@@ -108,7 +184,14 @@ impl StagedFile {
             let _ = std::fs::remove_file(&self.temp);
             return Err(SinkError::io(&self.path, e));
         }
-        Ok(())
+        match kept_after {
+            None => Ok(()),
+            Some(e) => Err(SinkError::Other(format!(
+                "{}: {e}; published the {} bytes complete before the error",
+                self.path.display(),
+                self.complete_len.unwrap_or(0)
+            ))),
+        }
     }
 
     /// Closes the temporary without publishing it; returns its path (the caller removes
@@ -152,5 +235,27 @@ mod tests {
         drop(g);
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "x\n");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn roll_back_keeps_the_complete_data_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.csv");
+        let mut f = StagedFile::create(&path).unwrap();
+        f.write_with(|w| writeln!(w, "header")).unwrap();
+        f.mark_complete().unwrap();
+        f.write_with(|w| writeln!(w, "frame 0")).unwrap();
+        f.mark_complete().unwrap();
+        assert_eq!(f.complete_len(), Some(15));
+        // Half a frame, some of it already on disk: cut back.
+        f.write_with(|w| w.write_all(&vec![b'x'; 100_000])).unwrap();
+        f.roll_back().unwrap();
+        f.write_with(|w| writeln!(w, "frame 1")).unwrap();
+        f.mark_complete().unwrap();
+        f.commit().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "header\nframe 0\nframe 1\n"
+        );
     }
 }

@@ -6,12 +6,16 @@
 //! camera rate, `startTimeCode`/`endTimeCode` = the first and last frame written, and the
 //! timecode of the first and last frame (with rate) in `customLayerData`.
 //!
-//! Streaming: each frame's points are appended to a temporary file as the frame arrives
-//! (no mesh is kept in memory); [`Sink::finish`] writes the header and topology, copies
-//! the samples, and publishes the file atomically.
+//! Streaming, in place: [`Sink::begin`] writes the file's start (a fixed-size room for
+//! the layer metadata, topology, UVs, rest points) and its end; each frame's points are
+//! written before the end, so the temporary file (beside `mesh.usda`) is a complete layer
+//! after every frame. [`Sink::finish`] writes the metadata into its room and publishes the
+//! file atomically. No mesh is kept in memory, and no step needs more disk space than the
+//! frames themselves: when a write fails (disk full), the file goes back to the last
+//! complete frame and is published with the frames before it.
 
 use std::fmt::Write as _;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -26,11 +30,21 @@ pub struct UsdSink {
     path: PathBuf,
     fps: f64,
     neutral: Option<Arc<Mesh>>,
-    samples: Option<StagedFile>,
+    file: Option<StagedFile>,
     first: Option<(usize, Option<Timecode>)>,
     last: Option<(usize, Option<Timecode>)>,
     frames: usize,
 }
+
+/// Bytes reserved at the start of the file for the layer metadata (written at the end of
+/// the take, padded with blanks).
+const META_BYTES: usize = 2048;
+
+/// The end of the file after the last time sample.
+const TAIL: &str = "\n        }\n        uniform token subdivisionScheme = \"none\"\n    }\n}\n";
+
+/// Longest `stopped` reason quoted in the metadata, characters.
+const MAX_STOPPED_CHARS: usize = 600;
 
 impl UsdSink {
     /// A sink writing `path` (e.g. `<out>/mesh.usda`).
@@ -39,7 +53,7 @@ impl UsdSink {
             path: path.to_path_buf(),
             fps: 0.0,
             neutral: None,
-            samples: None,
+            file: None,
             first: None,
             last: None,
             frames: 0,
@@ -85,25 +99,48 @@ impl Sink for UsdSink {
         if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| SinkError::io(dir, e))?;
         }
-        let mut samples_path = self.path.clone().into_os_string();
-        samples_path.push(".samples");
-        self.samples = Some(StagedFile::create(Path::new(&samples_path))?);
-        self.neutral = Some(neutral);
         self.fps = session.fps;
+        let mut file = StagedFile::create(&self.path)?;
+        let meta = self.metadata(None)?;
+        let body = mesh_body(&neutral);
+        file.write_with(|w| {
+            w.write_all(meta.as_bytes())?;
+            w.write_all(body.as_bytes())?;
+            w.write_all(TAIL.as_bytes())
+        })?;
+        file.mark_complete()?;
+        back_over_tail(&mut file)?;
+        self.file = Some(file);
+        self.neutral = Some(neutral);
         Ok(())
     }
 
     fn write(&mut self, fr: &FrameResult) -> Result<(), SinkError> {
-        let (Some(mesh), Some(samples)) = (&fr.mesh, &mut self.samples) else {
+        let (Some(mesh), Some(file)) = (&fr.mesh, &mut self.file) else {
             return Ok(());
         };
-        let mut line = String::with_capacity(mesh.len() * 32 + 16);
+        let mut line = String::with_capacity(mesh.len() * 32 + 16 + TAIL.len());
         if self.frames > 0 {
             line.push_str(",\n");
         }
         let _ = write!(line, "            {}: ", fr.index);
         write_points(&mut line, mesh);
-        samples.write_with(|w| w.write_all(line.as_bytes()))?;
+        line.push_str(TAIL);
+        let result = file
+            .write_with(|w| w.write_all(line.as_bytes()))
+            .and_then(|()| file.mark_complete());
+        if let Err(e) = result {
+            if let Err(r) = roll_back(file) {
+                tracing::error!(
+                    "{}: cannot go back to the last frame: {r}",
+                    self.path.display()
+                );
+                // Unpublishable: dropping the staged file removes it.
+                self.file = None;
+            }
+            return Err(e);
+        }
+        back_over_tail(file)?;
         self.first.get_or_insert((fr.index, fr.timecode));
         self.last = Some((fr.index, fr.timecode));
         self.frames += 1;
@@ -111,23 +148,113 @@ impl Sink for UsdSink {
     }
 
     fn finish(&mut self, metrics: &Metrics) -> Result<(), SinkError> {
-        let (Some(samples), Some(neutral)) = (self.samples.take(), self.neutral.clone()) else {
+        let Some(mut file) = self.file.take() else {
             return Ok(());
         };
-        let samples_path = samples.close_temp()?;
-        let result = self.assemble(&neutral, &samples_path, metrics);
-        let _ = std::fs::remove_file(&samples_path);
-        result
+        let meta = self.metadata(metrics.stopped.as_deref())?;
+        // The metadata goes into its room at the start: no new space is needed.
+        file.write_with(|w| {
+            w.seek(SeekFrom::Start(0))?;
+            w.write_all(meta.as_bytes())
+        })?;
+        file.commit()
     }
 }
 
+/// Back to the last complete frame after a failed write: the file is cut there and its end
+/// ([`TAIL`], whose bytes are on disk already: no new space) written again.
+fn roll_back(file: &mut StagedFile) -> Result<(), SinkError> {
+    file.roll_back()?;
+    let end = file.complete_len().unwrap_or(0);
+    file.write_with(|w| {
+        w.seek(SeekFrom::Start(end.saturating_sub(TAIL.len() as u64)))?;
+        w.write_all(TAIL.as_bytes())?;
+        w.flush()
+    })?;
+    back_over_tail(file)
+}
+
+/// Puts the writer back before [`TAIL`] (the next frame overwrites it).
+fn back_over_tail(file: &mut StagedFile) -> Result<(), SinkError> {
+    let end = file.complete_len().unwrap_or(0);
+    file.write_with(|w| {
+        w.seek(SeekFrom::Start(end.saturating_sub(TAIL.len() as u64)))
+            .map(drop)
+    })
+}
+
+/// The prims: topology, rest points, UVs, and the opening of `points.timeSamples`.
+fn mesh_body(neutral: &Mesh) -> String {
+    let mut head = String::new();
+    let _ = writeln!(
+        head,
+        "def Xform \"Face\" (\n    kind = \"component\"\n)\n{{"
+    );
+    let _ = writeln!(head, "    def Mesh \"face\"\n    {{");
+    let counts: Vec<String> = neutral.faces().map(|p| p.len().to_string()).collect();
+    let _ = writeln!(
+        head,
+        "        int[] faceVertexCounts = [{}]",
+        counts.join(", ")
+    );
+    let indices: Vec<String> = neutral.face_vertices.iter().map(u32::to_string).collect();
+    let _ = writeln!(
+        head,
+        "        int[] faceVertexIndices = [{}]",
+        indices.join(", ")
+    );
+    let _ = writeln!(head, "        uniform token orientation = \"rightHanded\"");
+    if let Some((lo, hi)) = neutral.bounding_box() {
+        let _ = writeln!(
+            head,
+            "        float3[] extent = [({}, {}, {}), ({}, {}, {})]",
+            f(lo.x),
+            f(lo.y),
+            f(lo.z),
+            f(hi.x),
+            f(hi.y),
+            f(hi.z)
+        );
+    }
+    let mut rest = String::new();
+    write_points(&mut rest, &neutral.positions);
+    let _ = writeln!(head, "        point3f[] points = {rest}");
+    if neutral.has_uvs() {
+        let uvs: Vec<String> = neutral
+            .uvs
+            .iter()
+            .map(|t| format!("({}, {})", f(t.x), f(t.y)))
+            .collect();
+        let _ = writeln!(
+            head,
+            "        texCoord2f[] primvars:st = [{}] (\n            interpolation = \"faceVarying\"\n        )",
+            uvs.join(", ")
+        );
+        let uv_indices: Vec<String> = neutral.face_uvs.iter().map(u32::to_string).collect();
+        let _ = writeln!(
+            head,
+            "        int[] primvars:st:indices = [{}]",
+            uv_indices.join(", ")
+        );
+    }
+    let _ = writeln!(head, "        point3f[] points.timeSamples = {{");
+    head
+}
+
 impl UsdSink {
-    fn assemble(
-        &self,
-        neutral: &Mesh,
-        samples_path: &Path,
-        metrics: &Metrics,
-    ) -> Result<(), SinkError> {
+    /// Test aid: what a failing write leaves (part of a frame in the file), then the
+    /// roll-back the sink does on a failure.
+    #[cfg(test)]
+    pub(crate) fn simulate_failed_write(&mut self) {
+        if let Some(file) = self.file.as_mut() {
+            let junk = vec![b'7'; 5000];
+            file.write_with(|w| w.write_all(&junk)).ok();
+            roll_back(file).ok();
+        }
+    }
+
+    /// The layer header and metadata, padded with blanks to exactly [`META_BYTES`].
+    fn metadata(&self, stopped: Option<&str>) -> Result<String, SinkError> {
         let (start, end) = match (self.first, self.last) {
             (Some((a, _)), Some((b, _))) => (a, b),
             _ => (0, 0),
@@ -158,8 +285,13 @@ impl UsdSink {
                 quoted(&b.to_string_with_rate())
             );
         }
-        if let Some(reason) = &metrics.stopped {
-            let _ = writeln!(head, "        string stopped = {}", quoted(reason));
+        if let Some(reason) = stopped {
+            let short: String = reason
+                .chars()
+                .take(MAX_STOPPED_CHARS)
+                .map(|c| if c.is_control() { ' ' } else { c })
+                .collect();
+            let _ = writeln!(head, "        string stopped = {}", quoted(&short));
         }
         let _ = writeln!(head, "    }}");
         let _ = writeln!(head, "    defaultPrim = \"Face\"");
@@ -168,79 +300,21 @@ impl UsdSink {
         let _ = writeln!(head, "    startTimeCode = {start}");
         let _ = writeln!(head, "    timeCodesPerSecond = {}", f(self.fps));
         let _ = writeln!(head, "    upAxis = \"Y\"");
-        let _ = writeln!(head, ")\n");
-        let _ = writeln!(
-            head,
-            "def Xform \"Face\" (\n    kind = \"component\"\n)\n{{"
-        );
-        let _ = writeln!(head, "    def Mesh \"face\"\n    {{");
-        let counts: Vec<String> = neutral.faces().map(|p| p.len().to_string()).collect();
-        let _ = writeln!(
-            head,
-            "        int[] faceVertexCounts = [{}]",
-            counts.join(", ")
-        );
-        let indices: Vec<String> = neutral.face_vertices.iter().map(u32::to_string).collect();
-        let _ = writeln!(
-            head,
-            "        int[] faceVertexIndices = [{}]",
-            indices.join(", ")
-        );
-        let _ = writeln!(head, "        uniform token orientation = \"rightHanded\"");
-        if let Some((lo, hi)) = neutral.bounding_box() {
-            let _ = writeln!(
-                head,
-                "        float3[] extent = [({}, {}, {}), ({}, {}, {})]",
-                f(lo.x),
-                f(lo.y),
-                f(lo.z),
-                f(hi.x),
-                f(hi.y),
-                f(hi.z)
-            );
+        let close = ")\n\n";
+        if head.len() + close.len() > META_BYTES {
+            return Err(SinkError::Other(format!(
+                "{}: the layer metadata takes {} bytes, {META_BYTES} are reserved",
+                self.path.display(),
+                head.len()
+            )));
         }
-        let mut rest = String::new();
-        write_points(&mut rest, &neutral.positions);
-        let _ = writeln!(head, "        point3f[] points = {rest}");
-        let _ = writeln!(head, "        point3f[] points.timeSamples = {{");
-        let mut tail = String::from("\n        }\n");
-        if neutral.has_uvs() {
-            let uvs: Vec<String> = neutral
-                .uvs
-                .iter()
-                .map(|t| format!("({}, {})", f(t.x), f(t.y)))
-                .collect();
-            let _ = writeln!(
-                tail,
-                "        texCoord2f[] primvars:st = [{}] (\n            interpolation = \"faceVarying\"\n        )",
-                uvs.join(", ")
-            );
-            let uv_indices: Vec<String> = neutral.face_uvs.iter().map(u32::to_string).collect();
-            let _ = writeln!(
-                tail,
-                "        int[] primvars:st:indices = [{}]",
-                uv_indices.join(", ")
-            );
+        // Blanks inside the metadata's parentheses are white space to USD.
+        let pad = META_BYTES - head.len() - close.len();
+        head.extend(std::iter::repeat_n(' ', pad.saturating_sub(1)));
+        if pad > 0 {
+            head.push('\n');
         }
-        let _ = writeln!(tail, "        uniform token subdivisionScheme = \"none\"");
-        let _ = writeln!(tail, "    }}\n}}");
-        let mut out = StagedFile::create(&self.path)?;
-        let samples =
-            std::fs::File::open(samples_path).map_err(|e| SinkError::io(samples_path, e))?;
-        out.write_with(|w| {
-            w.write_all(head.as_bytes())?;
-            let mut reader = BufReader::with_capacity(1 << 16, samples);
-            loop {
-                let buf = reader.fill_buf()?;
-                if buf.is_empty() {
-                    break;
-                }
-                w.write_all(buf)?;
-                let n = buf.len();
-                reader.consume(n);
-            }
-            w.write_all(tail.as_bytes())
-        })?;
-        out.commit()
+        head.push_str(close);
+        Ok(head)
     }
 }

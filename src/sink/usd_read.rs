@@ -130,6 +130,9 @@ pub fn parse_usda_sequence(bytes: &[u8], name: &str) -> Result<UsdMeshSequence, 
     cursor.pos = find("point3f[] points.timeSamples = ")?;
     cursor.expect('{').map_err(|(at, m)| err(at, m))?;
     let mut frames: Vec<(f64, Vec<Point3<f64>>)> = Vec::new();
+    // Time code (bits) -> byte offset of its sample, to refuse a time code used twice (one
+    // sample would silently replace the other in any USD reader).
+    let mut seen: std::collections::HashMap<u64, usize> = std::collections::HashMap::new();
     loop {
         cursor.skip_space();
         if cursor.eat('}') {
@@ -144,6 +147,17 @@ pub fn parse_usda_sequence(bytes: &[u8], name: &str) -> Result<UsdMeshSequence, 
         }
         let at = cursor.pos;
         let time = cursor.number().map_err(|(at, m)| err(at, m))?;
+        if let Some(&before) = seen.get(&(time + 0.0).to_bits()) {
+            let first_line = 1 + bytes[..before].iter().filter(|&&b| b == b'\n').count();
+            return Err(err(
+                at,
+                format!(
+                    "time code {time} has a second sample (the first is on line {first_line}); \
+                     each time code may have one"
+                ),
+            ));
+        }
+        seen.insert((time + 0.0).to_bits(), at);
         cursor.expect(':').map_err(|(at, m)| err(at, m))?;
         let points = cursor.point_array().map_err(|(at, m)| err(at, m))?;
         if let Some((_, first)) = frames.first()
@@ -346,6 +360,52 @@ mod tests {
         }
     }
 
+    /// The sink's file after a failed write (part of a frame written, then cut back) reads
+    /// with the complete frames, and the metadata written into its room says how many.
+    #[test]
+    fn a_failed_frame_is_cut_and_the_rest_published() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("mesh.usda");
+        let neutral = Arc::new(crate::mesh::test_meshes::grid(3, 1.0));
+        let mut sink = crate::sink::UsdSink::new(&path);
+        sink.begin(&SessionMeta {
+            name: "t".into(),
+            fps: 30.0,
+            timecode_rate: None,
+            first_frame: 0,
+            frame_count: None,
+            layout: Arc::new(Default::default()),
+            neutral_markers_head: Arc::new(Vec::new()),
+            neutral: Some(neutral.clone()),
+            face_vertices: None,
+            rig: None,
+            image_size: None,
+        })
+        .unwrap();
+        let image = GrayImage {
+            width: 1,
+            height: 1,
+            data: vec![0],
+        };
+        for index in 0..4 {
+            let mut fr = FrameResult::new(index, 0, None, [image.clone(), image.clone()], 0);
+            fr.mesh = Some(Arc::new(neutral.positions.clone()));
+            sink.write(&fr).unwrap();
+        }
+        sink.simulate_failed_write();
+        let stopped = Metrics {
+            stopped: Some("sink usd failed at frame 4: No space left on device".into()),
+            ..Metrics::default()
+        };
+        sink.finish(&stopped).unwrap();
+        let read = read_usda_sequence(&path).unwrap();
+        assert_eq!(read.frames.len(), 4);
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.contains("int frames = 4"), "{text}");
+        assert!(text.contains("endTimeCode = 3"));
+        assert!(text.contains("string stopped = \"sink usd failed"));
+    }
+
     #[test]
     fn refuses_other_usd_files_with_the_line() {
         let name = "x.usda";
@@ -382,5 +442,21 @@ mod tests {
         let ok = parse_usda_sequence(fine.as_bytes(), name).unwrap();
         assert_eq!(ok.frames.len(), 1);
         assert_eq!(ok.frames[0].1[2], Point3::new(0.0, 1.0, 0.0));
+    }
+
+    /// Two samples at one time code: one would replace the other (enhance used to report
+    /// 5 frames and write 4); refused with both lines.
+    #[test]
+    fn refuses_a_time_code_with_two_samples() {
+        let text = "#usda 1.0\ndef Mesh \"a\" {\n int[] faceVertexCounts = [3]\n \
+                    int[] faceVertexIndices = [0, 1, 2]\n point3f[] points.timeSamples = {\n \
+                    0: [(0, 0, 0), (1, 0, 0), (0, 1, 0)],\n 1: [(0, 0, 0), (1, 0, 0), (0, 1, 0)],\n \
+                    1.0: [(0, 0, 0), (1, 0, 0), (0, 1, 1)]\n }\n}\n";
+        let e = parse_usda_sequence(text.as_bytes(), "x.usda").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "x.usda:8: time code 1 has a second sample (the first is on line 7); \
+             each time code may have one"
+        );
     }
 }
