@@ -3,8 +3,17 @@
 //! (`primvars:st`, face-varying, indexed) and the solved positions as time samples of
 //! `points`, one per frame at time code = frame index. Stage metadata: `metersPerUnit =
 //! 0.001` (millimetres), `upAxis = "Y"` (the head frame's up), `timeCodesPerSecond` = the
-//! camera rate, `startTimeCode`/`endTimeCode` = the first and last frame written, and the
-//! timecode of the first and last frame (with rate) in `customLayerData`.
+//! camera rate, `framesPerSecond` = the camera rate too (readers assume 24 without it),
+//! `startTimeCode`/`endTimeCode` = the first and last frame written, and the timecode of
+//! the first and last frame (with rate) in `customLayerData`.
+//!
+//! Head pose: the `/Face` Xform carries a time-sampled `xformOp:transform`, the head's
+//! motion relative to the helmet cameras since the first frame with a pose,
+//! `first_from_head(t) = cam0_from_head(t₀)⁻¹ · cam0_from_head(t)` (identity at the first
+//! posed frame, so the face stays upright in the head frame's Y-up axes; the mesh points
+//! stay in the head frame). Frames without a pose get no sample (USD interpolates). The
+//! helmet moves with the head, so this is the helmet's slip on the head, not the head's
+//! motion in the room.
 //!
 //! Streaming: each frame's points are appended to a temporary file as the frame arrives
 //! (no mesh is kept in memory); [`Sink::finish`] writes the header and topology, copies
@@ -16,6 +25,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::staged_file::StagedFile;
+use nalgebra::Isometry3;
+
 use crate::mesh::Mesh;
 use crate::pipeline::{FrameResult, Metrics, SessionMeta, Sink, SinkError};
 use crate::timecode::Timecode;
@@ -30,6 +41,9 @@ pub struct UsdSink {
     first: Option<(usize, Option<Timecode>)>,
     last: Option<(usize, Option<Timecode>)>,
     frames: usize,
+    /// The first posed frame's `head_from_cam0` and the per-frame relative poses.
+    pose_origin: Option<Isometry3<f64>>,
+    poses: Vec<(usize, Isometry3<f64>)>,
 }
 
 impl UsdSink {
@@ -43,6 +57,8 @@ impl UsdSink {
             first: None,
             last: None,
             frames: 0,
+            pose_origin: None,
+            poses: Vec::new(),
         }
     }
 }
@@ -66,6 +82,28 @@ fn write_points(out: &mut String, points: &[nalgebra::Point3<f64>]) {
         let _ = write!(out, "({}, {}, {})", f(p.x), f(p.y), f(p.z));
     }
     out.push(']');
+}
+
+/// A rigid transform as a USD `matrix4d` literal: row-vector convention (a point is
+/// `p' = p · M`), so the rotation is transposed and the translation is the last row.
+pub(crate) fn usd_matrix(pose: &Isometry3<f64>) -> String {
+    let m = pose.to_homogeneous();
+    let mut out = String::from("(");
+    for row in 0..4 {
+        if row > 0 {
+            out.push_str(", ");
+        }
+        let _ = write!(
+            out,
+            "({}, {}, {}, {})",
+            m[(0, row)],
+            m[(1, row)],
+            m[(2, row)],
+            m[(3, row)]
+        );
+    }
+    out.push(')');
+    out
 }
 
 /// A string literal for USD (quotes and backslashes escaped).
@@ -107,6 +145,13 @@ impl Sink for UsdSink {
         self.first.get_or_insert((fr.index, fr.timecode));
         self.last = Some((fr.index, fr.timecode));
         self.frames += 1;
+        if let Some(cam0_from_head) = fr.cam0_from_head {
+            let first_from_cam0 = *self
+                .pose_origin
+                .get_or_insert_with(|| cam0_from_head.inverse());
+            self.poses
+                .push((fr.index, first_from_cam0 * cam0_from_head));
+        }
         Ok(())
     }
 
@@ -164,6 +209,7 @@ impl UsdSink {
         let _ = writeln!(head, "    }}");
         let _ = writeln!(head, "    defaultPrim = \"Face\"");
         let _ = writeln!(head, "    endTimeCode = {end}");
+        let _ = writeln!(head, "    framesPerSecond = {}", f(self.fps));
         let _ = writeln!(head, "    metersPerUnit = 0.001");
         let _ = writeln!(head, "    startTimeCode = {start}");
         let _ = writeln!(head, "    timeCodesPerSecond = {}", f(self.fps));
@@ -173,6 +219,18 @@ impl UsdSink {
             head,
             "def Xform \"Face\" (\n    kind = \"component\"\n)\n{{"
         );
+        if !self.poses.is_empty() {
+            let _ = writeln!(head, "    matrix4d xformOp:transform.timeSamples = {{");
+            for (i, (frame, pose)) in self.poses.iter().enumerate() {
+                let sep = if i + 1 < self.poses.len() { "," } else { "" };
+                let _ = writeln!(head, "        {frame}: {}{sep}", usd_matrix(pose));
+            }
+            let _ = writeln!(head, "    }}");
+            let _ = writeln!(
+                head,
+                "    uniform token[] xformOpOrder = [\"xformOp:transform\"]"
+            );
+        }
         let _ = writeln!(head, "    def Mesh \"face\"\n    {{");
         let counts: Vec<String> = neutral.faces().map(|p| p.len().to_string()).collect();
         let _ = writeln!(
