@@ -53,3 +53,11 @@ if [ ! -x "$python_env/bin/rerun" ] || ! "$python_env/bin/python" -c "import pxr
     echo "setup: could not install usd-core, c3d and rerun-sdk; the tests that use them skip" >&2
   fi
 fi
+
+# The Live Link Face UDP decoder the streaming test checks our packets with.
+if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import pylivelinkface" 2>/dev/null; then
+  echo "setup: installing pylivelinkface into $python_env"
+  if ! "$python_env/bin/pip" install -q pylivelinkface; then
+    echo "setup: could not install pylivelinkface; the Live Link UDP test skips" >&2
+  fi
+fi

@@ -113,6 +113,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             ..Default::default()
         },
         export: vec![Export::Usd, Export::Obj, Export::C3d],
+        rig_stage: Default::default(),
         enhance: args.enhance,
         solve_stage: Default::default(),
         frames: None,
