@@ -61,3 +61,11 @@ if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import trim
   "$python_env/bin/pip" install -q trimesh ||
     echo "setup: could not install trimesh; the PLY cross-check skips" >&2
 fi
+
+# The Live Link Face UDP decoder the streaming test checks our packets with.
+if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import pylivelinkface" 2>/dev/null; then
+  echo "setup: installing pylivelinkface into $python_env"
+  if ! "$python_env/bin/pip" install -q pylivelinkface; then
+    echo "setup: could not install pylivelinkface; the Live Link UDP test skips" >&2
+  fi
+fi

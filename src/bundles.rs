@@ -25,7 +25,15 @@
 //!
 //! Frames come out sorted by frame number; rows may come in any order.
 //!
+//! # C3D
+//! Wherever a bundles CSV is read, a C3D marker file is read too, recognised by content
+//! (not extension): see [`c3d`] for what is taken from it. A [`LabelMap`]
+//! (`--label-map CSV`, header `c3d_label,marker`) renames markers whose names differ
+//! from the layout's, in either format.
+//!
 //! Depends on [`crate::dataset`] (marker layouts) only.
+
+pub mod c3d;
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write;
@@ -102,10 +110,90 @@ pub struct ReadReport {
     /// Rows with a non-finite coordinate, treated as the marker missing in that frame.
     pub non_finite_rows: usize,
     /// Rows naming a marker the layout does not have, counted per name (sorted by name).
+    /// For a C3D file: per label, the frames in which that point is valid.
     pub unknown_markers: BTreeMap<String, usize>,
     /// Rows with a coordinate farther than [`MAX_PLAUSIBLE_MM`] from the head frame's
     /// origin (wrong units, a corrupt file), treated as the marker missing in that frame.
     pub implausible_rows: usize,
+    /// What the file said about itself when it was a C3D file (`None` for a CSV).
+    pub c3d: Option<c3d::C3dInfo>,
+}
+
+/// Marker names of a capture file mapped to the layout's (CSV `c3d_label,marker`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LabelMap {
+    map: HashMap<String, String>,
+}
+
+impl LabelMap {
+    /// A map from (file name, layout name) pairs.
+    pub fn new<I: IntoIterator<Item = (String, String)>>(pairs: I) -> Self {
+        Self {
+            map: pairs.into_iter().collect(),
+        }
+    }
+
+    /// The layout's name for a file's marker name, when the map has one.
+    pub fn get(&self, label: &str) -> Option<&str> {
+        self.map.get(label).map(String::as_str)
+    }
+
+    /// Reads a label map CSV: header `c3d_label,marker`, one row per renamed marker.
+    ///
+    /// # Errors
+    /// [`BundlesError`] naming the file (and line): unreadable file, wrong header, a row
+    /// without two names, a label mapped twice.
+    pub fn read_csv(path: &Path) -> Result<Self, BundlesError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| BundlesError::Io {
+            path: name.clone(),
+            source,
+        })?;
+        Self::parse_csv(&text, &name)
+    }
+
+    /// Parses label map CSV text; `name` stands for the file in errors.
+    ///
+    /// # Errors
+    /// As [`LabelMap::read_csv`].
+    pub fn parse_csv(text: &str, name: &str) -> Result<Self, BundlesError> {
+        let err = |line: usize, message: String| BundlesError::Parse {
+            path: name.to_string(),
+            line,
+            message,
+        };
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+        let (hline, header) = lines
+            .next()
+            .ok_or_else(|| err(1, "empty file: expected header c3d_label,marker".into()))?;
+        let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+        if cols.len() < 2 || cols[..2] != ["c3d_label", "marker"] {
+            return Err(err(
+                hline,
+                format!("header {header:?} should be c3d_label,marker"),
+            ));
+        }
+        let mut map = HashMap::new();
+        let mut seen: HashMap<String, usize> = HashMap::new();
+        for (line, row) in lines {
+            let f: Vec<&str> = row.split(',').map(str::trim).collect();
+            if f.len() < 2 || f[0].is_empty() || f[1].is_empty() {
+                return Err(err(line, "expected c3d_label,marker".into()));
+            }
+            if let Some(first) = seen.insert(f[0].to_string(), line) {
+                return Err(err(
+                    line,
+                    format!("label {} is mapped twice (first on line {first})", f[0]),
+                ));
+            }
+            map.insert(f[0].to_string(), f[1].to_string());
+        }
+        Ok(Self { map })
+    }
 }
 
 /// A bundle coordinate beyond ±10 m is not on a face in the head frame (a face is about
@@ -125,11 +213,36 @@ pub fn read_bundles(
     path: &Path,
     layout: &MarkerLayout,
 ) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
-    let text = std::fs::read_to_string(path).map_err(|source| BundlesError::Io {
-        path: path.display().to_string(),
+    read_bundles_with(path, layout, None)
+}
+
+/// Reads a marker file for `layout`, a bundles CSV or a C3D file (recognised by content),
+/// renaming markers through `label_map` when given.
+///
+/// # Errors
+/// As [`read_bundles`]; for a C3D file, errors name the file and say "C3D" (unreadable
+/// file, unknown units, no point label naming a layout marker, two labels for one
+/// marker). A file that is neither is an error saying so.
+pub fn read_bundles_with(
+    path: &Path,
+    layout: &MarkerLayout,
+    label_map: Option<&LabelMap>,
+) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
+    let name = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| BundlesError::Io {
+        path: name.clone(),
         source,
     })?;
-    parse_bundles(&text, &path.display().to_string(), layout)
+    if c3d::is_c3d(&bytes) {
+        return c3d::parse_c3d(&bytes, &name, layout, label_map);
+    }
+    let text = String::from_utf8(bytes).map_err(|_| BundlesError::Mismatch {
+        path: name.clone(),
+        message: "neither a bundles CSV (not UTF-8 text) nor a C3D file (no C3D header): \
+                  give a frame,marker,x,y,z CSV or a C3D marker file"
+            .into(),
+    })?;
+    parse_bundles_with(&text, &name, layout, label_map)
 }
 
 /// Parses bundles CSV text; `name` stands for the file in errors.
@@ -140,6 +253,19 @@ pub fn parse_bundles(
     text: &str,
     name: &str,
     layout: &MarkerLayout,
+) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
+    parse_bundles_with(text, name, layout, None)
+}
+
+/// [`parse_bundles`] with markers renamed through `label_map`.
+///
+/// # Errors
+/// As [`read_bundles`].
+pub fn parse_bundles_with(
+    text: &str,
+    name: &str,
+    layout: &MarkerLayout,
+    label_map: Option<&LabelMap>,
 ) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
     let err = |line: usize, message: String| BundlesError::Parse {
         path: name.to_string(),
@@ -205,7 +331,9 @@ pub fn parse_bundles(
                 ),
             ));
         }
-        let marker = fields[1];
+        let marker = label_map
+            .and_then(|m| m.get(fields[1]))
+            .unwrap_or(fields[1]);
         let mut xyz = [0.0f64; 3];
         for (k, c) in xyz.iter_mut().enumerate() {
             *c = fields[2 + k].parse().map_err(|_| {

@@ -17,12 +17,15 @@
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 //! - [`rig`]: actor-specific blendshape rigs (Li et al. 2010), scan registration, rigs
 //!   from LGI.
+//! - [`animation`]: rig weights per frame from solved meshes, name maps (ARKit), Live
+//!   Link Face layouts.
 //! - [`pipeline`]: the streaming pipeline (stage threads, frame envelope, metrics, the
 //!   sink interface).
 //! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D) and the rerun
 //!   viewer / `.rrd` recordings.
 
 pub mod align;
+pub mod animation;
 pub mod atomic_file;
 pub mod baseline;
 pub mod bundles;

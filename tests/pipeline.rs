@@ -156,6 +156,13 @@ pts = mesh.GetPointsAttr().Get(times[-1])
 assert len(pts) == {vertices}, len(pts)
 st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
 assert st and st.GetInterpolation() == "faceVarying"
+assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond()
+face = UsdGeom.Xformable(stage.GetPrimAtPath("/Face"))
+ops = face.GetOrderedXformOps()
+if ops:
+    times = ops[0].GetTimeSamples()
+    first = ops[0].Get(times[0])
+    assert all(abs(first[i][j] - (i == j)) < 1e-9 for i in range(4) for j in range(4)), first
 print("pxr ok", stage.GetTimeCodesPerSecond(), stage.GetStartTimeCode(), stage.GetEndTimeCode())
 "#,
         path = path.to_str().unwrap()
@@ -420,6 +427,7 @@ fn replay_matches_ground_truth_and_writes_every_output() {
     );
     let text = std::fs::read_to_string(out.join("mesh.usda")).unwrap();
     assert!(text.contains("timeCodesPerSecond = 60"));
+    assert!(text.contains("framesPerSecond = 60"));
     assert!(text.contains(&format!("endTimeCode = {}", frames - 1)));
     check_with_pxr(&out.join("mesh.usda"), frames, vertices);
 

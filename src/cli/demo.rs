@@ -116,6 +116,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             ..Default::default()
         },
         export: vec![Export::Usd, Export::Obj, Export::C3d],
+        rig_stage: Default::default(),
         enhance: args.enhance,
         solve_stage: Default::default(),
         frames: None,

@@ -33,6 +33,10 @@ pub struct EnhanceArgs {
     /// defaults).
     #[arg(long, value_name = "TOML")]
     pub params: Option<PathBuf>,
+    /// Unit of the input meshes (default mm); each frame is checked against the
+    /// database's size, so a file in metres read as millimetres is refused.
+    #[arg(long, value_enum, default_value_t = super::MeshUnits::Mm)]
+    pub units: super::MeshUnits,
 }
 
 /// Onsets of the built-in actor's enhancement database (see
@@ -177,6 +181,10 @@ pub fn run(args: EnhanceArgs) -> anyhow::Result<()> {
     let count = input.len();
     let bar = indicatif::ProgressBar::new(count as u64);
     let enhance_one = |label: &str, name: &std::ffi::OsStr, positions: &[nalgebra::Point3<f64>]| {
+        let positions = args
+            .units
+            .to_mm_checked(positions, &dataset.neutral.positions, label)?;
+        let positions = &positions[..];
         let enhanced = enhancer
             .enhance(positions)
             .with_context(|| format!("enhancing {label}"))?;

@@ -58,6 +58,9 @@ pub struct LiveArgs {
     /// Settings of the dense solve.
     #[command(flatten)]
     pub solve_stage: super::replay::SolveStageArgs,
+    /// Rig solve per frame (`--rig`, `--name-map`, `--rig-smoothing`).
+    #[command(flatten)]
+    pub rig_stage: super::animate::RigStageArgs,
     /// Stop after labeling and stabilization (no dense solve, no meshes).
     #[arg(long)]
     pub no_solve: bool,
@@ -196,6 +199,16 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
 
     let out = &args.out;
     let (mut sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
+    if let Some((sink, files)) = args.rig_stage.sink(
+        &ds,
+        &dataset_args,
+        args.export.contains(&Export::LivelinkCsv),
+        args.export.contains(&Export::UsdSkel),
+        out,
+    )? {
+        sinks.push(sink);
+        outputs.extend(files);
+    }
     args.view
         .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
     outputs.push(out.join("live_stats.json"));

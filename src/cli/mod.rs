@@ -1,6 +1,7 @@
 //! Subcommands, one file each. Every command validates its input and reports one clear
 //! error line; long work shows a progress bar.
 
+mod animate;
 mod bench;
 mod bench_capture;
 mod bench_pipeline;
@@ -52,6 +53,8 @@ enum Command {
     Enhance(enhance::EnhanceArgs),
     /// Interpolate two keyframes with the actor's timing (Bermano et al. 2014 §6).
     Retime(retime::RetimeArgs),
+    /// Solved meshes -> rig weights per frame and animation exports (Live Link Face CSV).
+    Animate(animate::AnimateArgs),
     /// Run the pipeline on a recorded session: bundles, head pose, meshes, exports.
     Replay(replay::ReplayArgs),
     /// Reconstruct the dense face of every frame of a bundles CSV.
@@ -104,6 +107,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Markers(c) => markers::run(c),
         Command::Enhance(a) => enhance::run(a),
         Command::Replay(a) => replay::run(a),
+        Command::Animate(a) => animate::run(a),
         Command::Retime(a) => retime::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Bench(c) => bench::run(c),
@@ -148,6 +152,43 @@ impl DatasetArgs {
         };
         helmcap::dataset::load_dataset(path, &options)
             .with_context(|| format!("loading dataset {}", path.display()))
+    }
+}
+
+/// The unit of mesh files given as input (`--units`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MeshUnits {
+    /// Millimetres (what helmcap writes).
+    Mm,
+    /// Centimetres.
+    Cm,
+    /// Metres.
+    M,
+}
+
+impl MeshUnits {
+    /// Factor from this unit to millimetres.
+    pub fn to_mm(self) -> f64 {
+        match self {
+            MeshUnits::Mm => 1.0,
+            MeshUnits::Cm => 10.0,
+            MeshUnits::M => 1000.0,
+        }
+    }
+
+    /// `positions` converted to millimetres, after checking their size against the
+    /// dataset's neutral (`reference`, mm); `label` names the input in the error.
+    pub fn to_mm_checked(
+        self,
+        positions: &[nalgebra::Point3<f64>],
+        reference: &[nalgebra::Point3<f64>],
+        label: &str,
+    ) -> anyhow::Result<Vec<nalgebra::Point3<f64>>> {
+        let k = self.to_mm();
+        let mm: Vec<_> = positions.iter().map(|p| p * k).collect();
+        helmcap::dataset::check_mesh_scale(&mm, reference)
+            .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
+        Ok(mm)
     }
 }
 

@@ -33,6 +33,12 @@ pub enum Export {
     Usd,
     /// The labeled bundles as C3D: `bundles.c3d`.
     C3d,
+    /// Unreal's Live Link Face CSV of the rig weights: `livelink.csv` (rig: `--rig`, else
+    /// the dataset).
+    LivelinkCsv,
+    /// UsdSkel blend-shape animation of the rig weights: `face_skel.usda` (rig: `--rig`,
+    /// else the dataset).
+    UsdSkel,
 }
 
 /// Arguments of `helmcap replay`.
@@ -66,9 +72,12 @@ pub struct ReplayArgs {
     /// Rerun viewer and logging options.
     #[command(flatten)]
     pub view: super::view::ViewerArgs,
-    /// Export format (repeatable): obj, ply, usd, c3d.
+    /// Export format (repeatable): obj, ply, usd, c3d, livelink-csv, usd-skel.
     #[arg(long, value_enum)]
     pub export: Vec<Export>,
+    /// Rig solve per frame (`--rig`, `--name-map`, `--rig-smoothing`).
+    #[command(flatten)]
+    pub rig_stage: super::animate::RigStageArgs,
     /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
     #[arg(long)]
     pub enhance: bool,
@@ -268,6 +277,19 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
 
     let out = &args.out;
     let (mut sinks, mut outputs) = file_sinks(out, &args.export);
+    if let Some((sink, files)) = args.rig_stage.sink(
+        &ds,
+        &dataset_args,
+        args.export.contains(&Export::LivelinkCsv),
+        args.export.contains(&Export::UsdSkel),
+        out,
+    )? {
+        if args.no_solve {
+            bail!("--no-solve writes no meshes to solve a rig from: drop --rig and livelink-csv");
+        }
+        sinks.push(sink);
+        outputs.extend(files);
+    }
     args.view
         .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
     if !args.quiet {
@@ -549,6 +571,8 @@ pub fn file_sinks(out: &Path, exports: &[Export]) -> (Vec<Box<dyn Sink>>, Vec<Pa
                 Box::new(C3dSink::new(&out.join("bundles.c3d"))),
                 out.join("bundles.c3d"),
             ),
+            // Written by the animation sink (`RigStageArgs::sink`).
+            Export::LivelinkCsv | Export::UsdSkel => continue,
         };
         sinks.push(sink);
         outputs.push(path);

@@ -42,6 +42,9 @@ pub struct RetimeArgs {
     /// Enhancement parameters (TOML), as for `helmcap enhance`.
     #[arg(long, value_name = "TOML")]
     pub params: Option<PathBuf>,
+    /// Unit of the keyframe meshes; both are checked against the database's size.
+    #[arg(long, value_enum, default_value_t = super::MeshUnits::Mm)]
+    pub units: super::MeshUnits,
 }
 
 /// Runs `helmcap retime`.
@@ -55,6 +58,19 @@ pub fn run(args: RetimeArgs) -> anyhow::Result<()> {
     let last =
         read_obj_positions(&args.to).with_context(|| format!("reading {}", args.to.display()))?;
     let (dataset, enhancer) = build_enhancer(&args.database, &params, false)?;
+    let reference = &dataset.neutral.positions;
+    let first = if first.len() == reference.len() {
+        args.units
+            .to_mm_checked(&first, reference, &args.from.display().to_string())?
+    } else {
+        first
+    };
+    let last = if last.len() == reference.len() {
+        args.units
+            .to_mm_checked(&last, reference, &args.to.display().to_string())?
+    } else {
+        last
+    };
     let sequences: Vec<Sequence> = match (&args.sequences, builtin_params(&args.database)?) {
         (Some(dir), _) => {
             let mut subdirs: Vec<PathBuf> = std::fs::read_dir(dir)

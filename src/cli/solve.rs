@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use helmcap::bundles::{FrameBundles, read_bundles};
+use helmcap::bundles::{FrameBundles, LabelMap, read_bundles_with};
 use helmcap::dataset::{Dataset, MarkerLayout};
 use helmcap::lgi::{LgiIndex, LgiParams, LgiSolver, TemporalParams, WeightSmoother};
 use helmcap::mesh::{write_obj_positions, write_ply};
@@ -43,9 +43,13 @@ pub struct SolveArgs {
     /// Marker layout CSV (name,vertex,stabilize_weight).
     #[arg(long, short = 'k', value_name = "CSV")]
     markers: PathBuf,
-    /// Bundles CSV (frame,marker,x,y,z in mm, head frame).
-    #[arg(long, short = 'b', value_name = "CSV")]
+    /// Bundles: a CSV (frame,marker,x,y,z in mm, head frame) or a C3D marker file
+    /// (recognised by content; POINT:UNITS mm, cm or m).
+    #[arg(long, short = 'b', value_name = "CSV|C3D")]
     bundles: PathBuf,
+    /// Marker names of the bundles file mapped to the layout's: CSV `c3d_label,marker`.
+    #[arg(long, value_name = "CSV")]
+    label_map: Option<PathBuf>,
     /// Output folder: one frame_NNNNNN.obj (or .ply) per frame.
     #[arg(long, short)]
     out: PathBuf,
@@ -81,8 +85,22 @@ pub fn run(args: SolveArgs) -> anyhow::Result<()> {
     layout
         .validate_for(&ds)
         .with_context(|| format!("markers {} do not fit {}", args.markers.display(), ds.name))?;
-    let (frames, report) = read_bundles(&args.bundles, &layout)
+    let label_map = match &args.label_map {
+        Some(p) => Some(LabelMap::read_csv(p).context("reading the label map")?),
+        None => None,
+    };
+    let (frames, report) = read_bundles_with(&args.bundles, &layout, label_map.as_ref())
         .with_context(|| format!("reading bundles {}", args.bundles.display()))?;
+    if let Some(c3d) = &report.c3d {
+        tracing::info!(
+            "{}: C3D, {} points at {} Hz in {}, first frame {}",
+            args.bundles.display(),
+            c3d.points,
+            c3d.rate_hz,
+            c3d.units,
+            c3d.first_frame
+        );
+    }
     if report.non_finite_rows > 0 {
         tracing::warn!(
             "{}: {} rows with non-finite coordinates count as missing markers",

@@ -12,9 +12,11 @@ pub mod actor;
 pub mod cache;
 pub mod manifest;
 pub mod markers;
+pub mod scale_check;
 
 pub use manifest::{DatasetError, LoadOptions, Manifest, Units, load_dataset, write_dataset};
 pub use markers::{Marker, MarkerLayout};
+pub use scale_check::{ScaleMismatch, check_mesh_scale};
 
 use std::ops::RangeInclusive;
 

@@ -2,13 +2,17 @@
 //!
 //! # What is read
 //! - `v x y z [w | r g b | w r g b | r g b a]`: positions; the optional 4th to 7th values
-//!   (homogeneous w or a vertex colour) are checked to be numbers and then ignored.
+//!   (homogeneous w or a vertex colour) are checked to be numbers (`nan` allowed: some
+//!   exporters write it for a missing colour) and then ignored.
+//! - A line whose data ends with `\` continues on the next line (errors name the first).
 //! - `vt u [v [w]]`: texture coordinates (`v` defaults to 0, `w` is ignored).
 //! - `vn x y z`: normals are parsed (they must be three numbers) and their indices are
 //!   checked, but they are **not stored**: helmcap deforms its meshes, so normals are
 //!   always recomputed from the geometry ([`super::vertex_normals`]). Non-finite normals
 //!   are tolerated for the same reason.
-//! - `f` with every corner form: `v`, `v/vt`, `v//vn`, `v/vt/vn`. Indices are 1-based;
+//! - `f` with every corner form: `v`, `v/vt`, `v//vn`, `v/vt/vn`, and the forms with
+//!   empty fields other tools write (`v/`, `v//`, `v/vt/`: an empty field means none).
+//!   Indices are 1-based;
 //!   negative indices count back from the last element read so far (`-1` is the latest).
 //!   Positive indices may refer to elements defined later in the file (as most readers
 //!   allow); they are checked once the whole file is read. Polygons keep all their
@@ -21,11 +25,11 @@
 //!   statements of the format are ignored (unknown statements once with a warning).
 //!
 //! # UV policy
-//! Either every face carries texture coordinates or none does. A file where some faces
-//! have `vt` indices and others do not is rejected with [`MeshError::Parse`] naming the
-//! first face that differs: per-corner UVs cannot be stored for part of a mesh, and
-//! silently dropping them would lose data at export. When no face uses `vt`, the `vt`
-//! pool is dropped too (so [`Mesh::uvs`] is empty exactly when the mesh has no UVs).
+//! Per-corner UVs are kept when any face corner has a `vt` index. Corners without one
+//! (files that mix textured and untextured faces, or corners like `v` among `v/vt`) all
+//! point to one extra UV at (0, 0), as Blender's importer does, and the count is logged
+//! as a warning: no face and no UV is dropped. When no face uses `vt`, the `vt` pool is
+//! dropped too (so [`Mesh::uvs`] is empty exactly when the mesh has no UVs).
 //!
 //! # Writing
 //! Writers produce `v`, `vt` and `f` lines (`v/vt` corners when the mesh has UVs, else
@@ -34,6 +38,7 @@
 //! bit-identically. Files are written atomically: to a temporary file in the target's
 //! directory, flushed to disk, then renamed over the target.
 
+use std::borrow::Cow;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
@@ -257,15 +262,38 @@ pub(crate) fn write_atomically(
     })
 }
 
-/// Splits OBJ bytes into `(1-based line number, line)`, skipping a UTF-8 byte-order
-/// mark. `\r` before `\n` is left in place: it is ASCII whitespace, so tokenizing drops
-/// it.
-fn lines(bytes: &[u8]) -> impl Iterator<Item = (usize, &[u8])> {
+/// Splits OBJ bytes into `(1-based line number, logical line)`, skipping a UTF-8
+/// byte-order mark. A line whose data (before any comment) ends with `\\` continues on
+/// the next line (the format's line continuation): the pieces are joined with a space and
+/// numbered by their first line. `\r` before `\n` is left in place: it is ASCII
+/// whitespace, so tokenizing drops it.
+fn lines(bytes: &[u8]) -> impl Iterator<Item = (usize, Cow<'_, [u8]>)> {
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-    bytes
-        .split(|&b| b == b'\n')
-        .enumerate()
-        .map(|(i, line)| (i + 1, line))
+    let mut raw = bytes.split(|&b| b == b'\n').enumerate();
+    std::iter::from_fn(move || {
+        let (i, first) = raw.next()?;
+        let Some(head) = continued(first) else {
+            return Some((i + 1, Cow::Borrowed(first)));
+        };
+        let mut joined = head.to_vec();
+        for (_, next) in raw.by_ref() {
+            joined.push(b' ');
+            match continued(next) {
+                Some(part) => joined.extend_from_slice(part),
+                None => {
+                    joined.extend_from_slice(next);
+                    break;
+                }
+            }
+        }
+        Some((i + 1, Cow::Owned(joined)))
+    })
+}
+
+/// The data of a line that ends with a continuation backslash, without the backslash
+/// (and without any comment); `None` when the line does not continue.
+fn continued(line: &[u8]) -> Option<&[u8]> {
+    strip_comment(line).trim_ascii_end().strip_suffix(b"\\")
 }
 
 /// A line without its comment (`#` to the end of the line).
@@ -305,7 +333,9 @@ fn parse_vertex<'b>(rest: impl Iterator<Item = &'b [u8]>) -> Result<Point3<f64>,
     for tok in rest {
         let x = parse_f64(tok)
             .ok_or_else(|| format!("malformed `v` line: `{}` is not a number", show(tok)))?;
-        if !x.is_finite() {
+        // Only the position must be finite: w and colour values are ignored, and some
+        // exporters write `nan` for a colour they do not have.
+        if n < 3 && !x.is_finite() {
             return Err(format!("non-finite value `{}` in a `v` line", show(tok)));
         }
         if let Some(slot) = xyz.get_mut(n) {
@@ -366,6 +396,9 @@ impl MaxRef {
     }
 }
 
+/// Placeholder in `face_uvs` for a corner without a `vt` index.
+const NO_UV: u32 = u32::MAX;
+
 /// State of one OBJ parse.
 struct ObjParser<'a> {
     name: &'a str,
@@ -375,8 +408,8 @@ struct ObjParser<'a> {
     face_offsets: Vec<u32>,
     face_vertices: Vec<u32>,
     face_uvs: Vec<u32>,
-    /// Whether faces carry `vt` indices, and the line of the first face.
-    faces_have_uvs: Option<(bool, usize)>,
+    /// Corners that carry a `vt` index (the others hold [`NO_UV`] in `face_uvs`).
+    uv_corners: usize,
     max_v: MaxRef,
     max_vt: MaxRef,
     max_vn: MaxRef,
@@ -415,7 +448,7 @@ impl<'a> ObjParser<'a> {
             face_offsets: vec![0],
             face_vertices: Vec::new(),
             face_uvs: Vec::new(),
-            faces_have_uvs: None,
+            uv_corners: 0,
             max_v: MaxRef::default(),
             max_vt: MaxRef::default(),
             max_vn: MaxRef::default(),
@@ -453,7 +486,7 @@ impl<'a> ObjParser<'a> {
         self.face_uvs.reserve(4 * guess);
 
         for (line_no, line) in lines(bytes) {
-            let line = strip_comment(line);
+            let line = strip_comment(&line);
             let mut toks = tokens(line);
             let Some(keyword) = toks.next() else {
                 continue;
@@ -617,7 +650,6 @@ impl<'a> ObjParser<'a> {
         line: usize,
     ) -> Result<(), MeshError> {
         let start = self.face_vertices.len();
-        let mut face_has_uvs = None;
         for corner in toks {
             let mut parts = corner.split(|&b| b == b'/');
             let v_tok = parts.next().unwrap_or_default();
@@ -637,34 +669,18 @@ impl<'a> ObjParser<'a> {
                 return Err(self.error(line, format!("face repeats vertex {}", u64::from(v) + 1)));
             }
             self.face_vertices.push(v);
-            // `v/` (empty vt, no vn) is malformed; `v//vn` has an empty vt on purpose.
-            let vt_tok = match (vt_tok, vn_tok) {
-                (Some([]), None) => {
-                    return Err(self.error(
-                        line,
-                        format!(
-                            "malformed `f` line: corner `{}` ends with `/`",
-                            show(corner)
-                        ),
-                    ));
+            // Empty fields mean "none": `v/`, `v//`, `v//vn`, `v/vt/` are all written by
+            // common tools.
+            let vt_tok = vt_tok.filter(|t| !t.is_empty());
+            let vn_tok = vn_tok.filter(|t| !t.is_empty());
+            match vt_tok {
+                Some(t) => {
+                    let t = self.resolve(t, Pool::TexCoord, line)?;
+                    self.face_uvs.push(t);
+                    self.uv_corners += 1;
                 }
-                (Some(t), _) if !t.is_empty() => Some(t),
-                _ => None,
-            };
-            let corner_has_uv = vt_tok.is_some();
-            match face_has_uvs {
-                None => face_has_uvs = Some(corner_has_uv),
-                Some(h) if h != corner_has_uv => {
-                    return Err(self.error(
-                        line,
-                        "face mixes corners with and without texture coordinates",
-                    ));
-                }
-                Some(_) => {}
-            }
-            if let Some(t) = vt_tok {
-                let t = self.resolve(t, Pool::TexCoord, line)?;
-                self.face_uvs.push(t);
+                // Filled in by `finish` when other corners have UVs.
+                None => self.face_uvs.push(NO_UV),
             }
             if let Some(n) = vn_tok {
                 self.resolve(n, Pool::Normal, line)?;
@@ -676,25 +692,6 @@ impl<'a> ObjParser<'a> {
                 line,
                 format!("face has {corners} corners (at least 3 needed)"),
             ));
-        }
-        let has = face_has_uvs.unwrap_or(false);
-        match self.faces_have_uvs {
-            None => self.faces_have_uvs = Some((has, line)),
-            Some((first, first_line)) if first != has => {
-                let (with, without) = if has {
-                    ("has", "do not")
-                } else {
-                    ("has no", "do")
-                };
-                return Err(self.error(
-                    line,
-                    format!(
-                        "face {with} texture coordinates but earlier faces {without} \
-                         (first face at line {first_line}); UVs must be on all faces or none"
-                    ),
-                ));
-            }
-            Some(_) => {}
         }
         let end = u32::try_from(self.face_vertices.len())
             .map_err(|_| self.error(line, "too many face corners for 32-bit indices"))?;
@@ -784,9 +781,26 @@ impl<'a> ObjParser<'a> {
         if u32::try_from(self.positions.len()).is_err() || u32::try_from(self.uvs.len()).is_err() {
             return Err(self.empty("too many vertices for 32-bit indices"));
         }
-        if !matches!(self.faces_have_uvs, Some((true, _))) {
+        if self.uv_corners == 0 {
             self.uvs = Vec::new();
             self.face_uvs = Vec::new();
+        } else if self.uv_corners < self.face_uvs.len() {
+            // Some corners have UVs and some not: the ones without get one extra UV at
+            // (0, 0), as Blender does, so no face and no UV is lost.
+            let missing = self.face_uvs.len() - self.uv_corners;
+            let origin = u32::try_from(self.uvs.len())
+                .map_err(|_| self.empty("too many texture coordinates for 32-bit indices"))?;
+            self.uvs.push(Point2::origin());
+            for t in &mut self.face_uvs {
+                if *t == NO_UV {
+                    *t = origin;
+                }
+            }
+            tracing::warn!(
+                "{}: {missing} face corner(s) without texture coordinates among corners \
+                 with them; they get UV (0, 0)",
+                self.name
+            );
         }
         Mesh::from_flat(
             self.positions,
@@ -953,7 +967,6 @@ mod tests {
         assert_parse_error("v 0 0 0\nvt 0.5 y\n", 2, "`y` is not a number");
         assert_parse_error("vn 0 0\n", 1, "`vn` line");
         assert_parse_error(&format!("{SQUARE}f 1 2 a\n"), 5, "not an integer");
-        assert_parse_error(&format!("{SQUARE}f 1 2 3/\n"), 5, "ends with `/`");
         assert_parse_error(&format!("{SQUARE}f 1 2 3/1/1/1\n"), 5, "more than v/vt/vn");
         assert_parse_error(&format!("{SQUARE}f 1 2 /1\n"), 5, "vertex index");
     }
@@ -1000,20 +1013,44 @@ mod tests {
         assert_parse_error(&format!("{SQUARE}f 1 2 -1 4\n"), 5, "repeats vertex 4");
     }
 
+    /// Faces with and without UVs in one file (issue 18): every face is kept, corners
+    /// without `vt` share one extra UV at (0, 0).
     #[test]
-    fn mixed_uv_faces_are_rejected() {
-        let uv = "vt 0 0\nvt 1 0\nvt 1 1\n";
-        assert_parse_error(
-            &format!("{SQUARE}{uv}f 1/1 2/2 3/3\nf 1 3 4\n"),
-            9,
-            "has no",
-        );
-        assert_parse_error(
-            &format!("{SQUARE}{uv}f 1 2 3\n\nf 1/1 3/2 4/3\n"),
-            10,
-            "line 8",
-        );
-        assert_parse_error(&format!("{SQUARE}{uv}f 1/1 2 3/3\n"), 8, "mixes corners");
+    fn mixed_uv_faces_load() {
+        let uv = "vt 0.5 0.5\nvt 1 0\nvt 1 1\n";
+        let m = parse(&format!("{SQUARE}{uv}f 1/1 2/2 3/3\nf 1 3 4\n")).unwrap();
+        assert_eq!(m.face_count(), 2);
+        assert_eq!(m.uvs.len(), 4);
+        assert_eq!(m.face_uv(0), &[0, 1, 2]);
+        assert_eq!(m.face_uv(1), &[3, 3, 3]);
+        assert_eq!(m.uvs[3], Point2::origin());
+        let m = parse(&format!("{SQUARE}{uv}f 1/1 2 3/3\n")).unwrap();
+        assert_eq!(m.face_uv(0), &[0, 3, 2]);
+    }
+
+    /// The corner forms with empty fields, line continuation and a `nan` colour that
+    /// other tools write (issue 18).
+    #[test]
+    fn forms_other_tools_write() {
+        let uv = "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n";
+        let m = parse(&format!("{SQUARE}f 1// 2// 3//\nf 1/ 3/ 4/\n")).unwrap();
+        assert_eq!((m.face_count(), m.uvs.len()), (2, 0));
+        assert_eq!(m.face(1), &[0, 2, 3]);
+        let m = parse(&format!("{SQUARE}{uv}f 1/1/ 2/2/ 3/3/\n")).unwrap();
+        assert_eq!(m.face_uv(0), &[0, 1, 2]);
+        let m = parse(&format!("{SQUARE}f 1 2 \\\n  3 4\nv 5 \\\n 6 7\nf 1 5 2\n")).unwrap();
+        assert_eq!(m.face(0), &[0, 1, 2, 3]);
+        assert_eq!(m.positions[4], Point3::new(5.0, 6.0, 7.0));
+        assert_eq!(m.face_count(), 2);
+        // A comment ending in a backslash does not continue.
+        let m = parse(&format!("{SQUARE}# note \\\nf 1 2 3\n")).unwrap();
+        assert_eq!(m.face_count(), 1);
+        // Errors after a continuation name the first line of the statement.
+        assert_parse_error(&format!("{SQUARE}f 1 2 \\\n x\n"), 5, "not an integer");
+        let m =
+            parse("v 0 0 0 nan nan nan\nv 1 0 0 0.5 0.5 0.5\nv 0 1 0 1 1 1\nf 1 2 3\n").unwrap();
+        assert_eq!(m.positions.len(), 3);
+        assert_parse_error("v 0 nan 0 1 1 1\n", 1, "non-finite");
     }
 
     #[test]
@@ -1245,9 +1282,10 @@ mod tests {
         });
         // Share of float parsing in the positions path (to judge a faster float parser).
         let bytes = std::fs::read(&expression).unwrap();
-        let floats: Vec<&[u8]> = lines(&bytes)
-            .filter(|(_, l)| l.starts_with(b"v "))
-            .flat_map(|(_, l)| tokens(l).skip(1))
+        let floats: Vec<&[u8]> = bytes
+            .split(|&b| b == b'\n')
+            .filter(|l| l.starts_with(b"v "))
+            .flat_map(|l| tokens(l).skip(1))
             .collect();
         let t_float = median(&|| {
             let s: f64 = floats.iter().map(|t| parse_f64(t).unwrap()).sum();

@@ -7,6 +7,7 @@
 //! Depends on [`crate::pipeline`] (frame and sink types), [`crate::mesh`],
 //! [`crate::camera`], [`crate::capture`], [`crate::timecode`].
 
+pub mod animation;
 pub mod c3d;
 pub mod csv;
 pub mod mesh;
@@ -15,7 +16,9 @@ pub mod staged_file;
 pub mod take_dir;
 pub mod usd;
 pub mod usd_read;
+pub mod usd_skel;
 
+pub use animation::{AnimationOutputs, AnimationSink, AnimationSummary, AnimationWriter};
 pub use c3d::C3dSink;
 pub use csv::{CsvSink, MetricsSink};
 pub use mesh::{MeshFormat, MeshSequenceSink};

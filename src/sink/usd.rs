@@ -299,6 +299,7 @@ impl UsdSink {
         let _ = writeln!(head, "    metersPerUnit = 0.001");
         let _ = writeln!(head, "    startTimeCode = {start}");
         let _ = writeln!(head, "    timeCodesPerSecond = {}", f(self.fps));
+        let _ = writeln!(head, "    framesPerSecond = {}", f(self.fps));
         let _ = writeln!(head, "    upAxis = \"Y\"");
         let close = ")\n\n";
         if head.len() + close.len() > META_BYTES {

@@ -1,0 +1,344 @@
+//! Name maps: a rig's shape names mapped to a target convention (CSV `shape,target`),
+//! and Apple's 52 ARKit blendshape names.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+/// Apple's 52 ARKit face blendshape names (`ARFaceAnchor.BlendShapeLocation`), in
+/// Apple's order: left eye, right eye, mouth and jaw, eyebrows, cheeks, nose, tongue.
+/// The same order is the index order of Live Link Face's curves.
+pub const ARKIT_NAMES: [&str; 52] = [
+    "eyeBlinkLeft",
+    "eyeLookDownLeft",
+    "eyeLookInLeft",
+    "eyeLookOutLeft",
+    "eyeLookUpLeft",
+    "eyeSquintLeft",
+    "eyeWideLeft",
+    "eyeBlinkRight",
+    "eyeLookDownRight",
+    "eyeLookInRight",
+    "eyeLookOutRight",
+    "eyeLookUpRight",
+    "eyeSquintRight",
+    "eyeWideRight",
+    "jawForward",
+    "jawLeft",
+    "jawRight",
+    "jawOpen",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthLeft",
+    "mouthRight",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthDimpleLeft",
+    "mouthDimpleRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "mouthRollLower",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthPressRight",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "cheekSquintRight",
+    "noseSneerLeft",
+    "noseSneerRight",
+    "tongueOut",
+];
+
+/// The shipped built-in actor → ARKit map.
+const BUILTIN_ARKIT: &str = include_str!("../../configs/namemaps/builtin-arkit.csv");
+/// The shipped ICT-FaceKit → ARKit map.
+const ICT_ARKIT: &str = include_str!("../../configs/namemaps/ict-arkit.csv");
+
+/// Errors reading a name map.
+#[derive(Debug, thiserror::Error)]
+pub enum NameMapError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The system's error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A line is malformed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// 1-based line.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// A map from a rig's shape names to target names (CSV `shape,target`).
+///
+/// Several shapes may map to one target (the ICT-FaceKit's `browInnerUp_L` and
+/// `browInnerUp_R` both to ARKit's `browInnerUp`): the target's value is then the mean of
+/// their weights. A shape absent from the map is *unmapped*: [`NameMap::apply`] reports
+/// it, it is not dropped silently.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NameMap {
+    /// (shape, target) rows in file order.
+    rows: Vec<(String, String)>,
+}
+
+/// A name map resolved against one rig and one target list.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ResolvedMap {
+    /// Per target (target order), the rig shape indices that feed it (empty: always 0).
+    pub sources: Vec<Vec<usize>>,
+    /// Rig shapes the map does not mention, by name.
+    pub unmapped_shapes: Vec<String>,
+    /// Map rows whose shape the rig does not have, or whose target is not in the list.
+    pub unused_rows: Vec<(String, String)>,
+}
+
+impl ResolvedMap {
+    /// Target values from rig weights (rig order).
+    pub fn apply(&self, weights: &[f64]) -> Vec<f64> {
+        self.sources
+            .iter()
+            .map(|s| {
+                if s.is_empty() {
+                    0.0
+                } else {
+                    s.iter()
+                        .map(|&i| weights.get(i).copied().unwrap_or(0.0))
+                        .sum::<f64>()
+                        / s.len() as f64
+                }
+            })
+            .collect()
+    }
+}
+
+impl NameMap {
+    /// The map from (shape, target) pairs.
+    pub fn new(rows: Vec<(String, String)>) -> Self {
+        Self { rows }
+    }
+
+    /// The shipped map from the built-in actor's expression names to ARKit's
+    /// (`configs/namemaps/builtin-arkit.csv`).
+    pub fn builtin_arkit() -> Self {
+        Self::parse_csv(BUILTIN_ARKIT, "builtin-arkit.csv")
+            .unwrap_or_else(|_| Self::new(Vec::new()))
+    }
+
+    /// The shipped map from the ICT-FaceKit's shape names to ARKit's
+    /// (`configs/namemaps/ict-arkit.csv`).
+    pub fn ict_arkit() -> Self {
+        Self::parse_csv(ICT_ARKIT, "ict-arkit.csv").unwrap_or_else(|_| Self::new(Vec::new()))
+    }
+
+    /// The identity map of `names` (each shape to itself).
+    pub fn identity<S: AsRef<str>>(names: &[S]) -> Self {
+        Self {
+            rows: names
+                .iter()
+                .map(|n| (n.as_ref().to_string(), n.as_ref().to_string()))
+                .collect(),
+        }
+    }
+
+    /// Reads a name map CSV (header `shape,target`; `#` comments and blank lines allowed).
+    ///
+    /// # Errors
+    /// [`NameMapError`] naming the file (and line): unreadable, wrong header, a row
+    /// without two names, a shape listed twice.
+    pub fn read_csv(path: &Path) -> Result<Self, NameMapError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| NameMapError::Io {
+            path: name.clone(),
+            source,
+        })?;
+        Self::parse_csv(&text, &name)
+    }
+
+    /// Parses name map CSV text; `name` stands for the file in errors.
+    ///
+    /// # Errors
+    /// As [`NameMap::read_csv`].
+    pub fn parse_csv(text: &str, name: &str) -> Result<Self, NameMapError> {
+        let err = |line: usize, message: String| NameMapError::Parse {
+            path: name.to_string(),
+            line,
+            message,
+        };
+        let mut lines = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+        let (hline, header) = lines
+            .next()
+            .ok_or_else(|| err(1, "empty file: expected header shape,target".into()))?;
+        if header.replace(' ', "") != "shape,target" {
+            return Err(err(
+                hline,
+                format!("header {header:?} should be shape,target"),
+            ));
+        }
+        let mut rows = Vec::new();
+        let mut seen: HashMap<String, usize> = HashMap::new();
+        for (line, row) in lines {
+            let f: Vec<&str> = row.split(',').map(str::trim).collect();
+            if f.len() != 2 || f[0].is_empty() || f[1].is_empty() {
+                return Err(err(line, format!("{row:?}: expected shape,target")));
+            }
+            if let Some(first) = seen.insert(f[0].to_string(), line) {
+                return Err(err(
+                    line,
+                    format!("shape {} is mapped twice (first on line {first})", f[0]),
+                ));
+            }
+            rows.push((f[0].to_string(), f[1].to_string()));
+        }
+        Ok(Self { rows })
+    }
+
+    /// Resolves the map for a rig's shape names and a target list.
+    pub fn resolve<S: AsRef<str>, T: AsRef<str>>(
+        &self,
+        shapes: &[S],
+        targets: &[T],
+    ) -> ResolvedMap {
+        let shape_index: HashMap<&str, usize> = shapes
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.as_ref(), i))
+            .collect();
+        let target_index: HashMap<&str, usize> = targets
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.as_ref(), i))
+            .collect();
+        let mut sources = vec![Vec::new(); targets.len()];
+        let mut mapped = vec![false; shapes.len()];
+        let mut unused_rows = Vec::new();
+        for (shape, target) in &self.rows {
+            match (
+                shape_index.get(shape.as_str()),
+                target_index.get(target.as_str()),
+            ) {
+                (Some(&s), Some(&t)) => {
+                    sources[t].push(s);
+                    mapped[s] = true;
+                }
+                _ => unused_rows.push((shape.clone(), target.clone())),
+            }
+        }
+        ResolvedMap {
+            sources,
+            unmapped_shapes: shapes
+                .iter()
+                .zip(&mapped)
+                .filter(|(_, m)| !**m)
+                .map(|(s, _)| s.as_ref().to_string())
+                .collect(),
+            unused_rows,
+        }
+    }
+
+    /// Targets and the shapes mapped to each (sorted by target), for reports.
+    pub fn by_target(&self) -> BTreeMap<&str, Vec<&str>> {
+        let mut out: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+        for (s, t) in &self.rows {
+            out.entry(t.as_str()).or_default().push(s.as_str());
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn configs() -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/namemaps")
+    }
+
+    /// The shipped maps: every target is an ARKit name; every built-in actor expression
+    /// is mapped; the ICT map covers every ICT shape of the shipped manifest.
+    #[test]
+    fn shipped_maps_are_complete() {
+        let actor_names =
+            crate::dataset::actor::Actor::new(&crate::dataset::actor::ActorParams::default())
+                .unwrap()
+                .expression_names()
+                .to_vec();
+        for (file, shapes) in [
+            (
+                "builtin-arkit.csv",
+                actor_names
+                    .iter()
+                    .map(|s| s.to_string())
+                    .collect::<Vec<_>>(),
+            ),
+            ("ict-arkit.csv", ict_manifest_shapes()),
+        ] {
+            let map = NameMap::read_csv(&configs().join(file)).unwrap();
+            let r = map.resolve(&shapes, &ARKIT_NAMES);
+            assert!(r.unused_rows.is_empty(), "{file}: {:?}", r.unused_rows);
+            assert!(
+                r.unmapped_shapes.is_empty(),
+                "{file}: {:?}",
+                r.unmapped_shapes
+            );
+            for t in map.by_target().keys() {
+                assert!(ARKIT_NAMES.contains(t), "{file}: {t}");
+            }
+        }
+    }
+
+    fn ict_manifest_shapes() -> Vec<String> {
+        let text = std::fs::read_to_string(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/datasets/ict-facekit.toml"),
+        )
+        .unwrap();
+        text.lines()
+            .filter_map(|l| l.trim().strip_prefix("name = \""))
+            .map(|l| l.trim_end_matches('"').to_string())
+            .collect()
+    }
+
+    #[test]
+    fn several_shapes_to_one_target_average_and_errors_name_lines() {
+        let map = NameMap::parse_csv(
+            "shape,target\n# brows\nbIU_L,browInnerUp\nbIU_R,browInnerUp\nx,jawOpen\n",
+            "m.csv",
+        )
+        .unwrap();
+        let r = map.resolve(&["bIU_L", "bIU_R", "extra"], &ARKIT_NAMES);
+        assert_eq!(r.unmapped_shapes, vec!["extra".to_string()]);
+        assert_eq!(r.unused_rows.len(), 1);
+        let v = r.apply(&[1.0, 0.0, 0.5]);
+        assert_eq!(v[43], 0.5);
+        assert_eq!(v.iter().sum::<f64>(), 0.5);
+        let e = NameMap::parse_csv("shape,target\na,b\na,c\n", "m.csv").unwrap_err();
+        assert!(e.to_string().starts_with("m.csv:3:"), "{e}");
+        let e = NameMap::parse_csv("name,arkit\n", "m.csv").unwrap_err();
+        assert!(e.to_string().contains("shape,target"), "{e}");
+    }
+}
