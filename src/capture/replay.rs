@@ -147,28 +147,24 @@ fn read_frames_csv(
         if f.len() < 2 {
             return Err(ferr(i + 1, "expected frame,timestamp_ns,timecode".into()));
         }
-        let index: usize = f[0]
-            .parse()
-            .map_err(|_| {
-                ferr(
-                    i + 1,
-                    format!(
-                        "frame {} is not a whole number",
-                        crate::limits::quoted(f[0])
-                    ),
-                )
-            })?;
-        let ts: u64 = f[1]
-            .parse()
-            .map_err(|_| {
-                ferr(
-                    i + 1,
-                    format!(
-                        "timestamp {} is not a whole number",
-                        crate::limits::quoted(f[1])
-                    ),
-                )
-            })?;
+        let index: usize = f[0].parse().map_err(|_| {
+            ferr(
+                i + 1,
+                format!(
+                    "frame {} is not a whole number",
+                    crate::limits::quoted(f[0])
+                ),
+            )
+        })?;
+        let ts: u64 = f[1].parse().map_err(|_| {
+            ferr(
+                i + 1,
+                format!(
+                    "timestamp {} is not a whole number",
+                    crate::limits::quoted(f[1])
+                ),
+            )
+        })?;
         if index as u64 > crate::limits::MAX_FRAME_NUMBER {
             return Err(ferr(
                 i + 1,

@@ -10,9 +10,7 @@ use helmcap::capture::{Replay, ReplayParams, StereoFrame};
 use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::synth::{AnimationParams, Performer, SynthParams, animation, default_rig};
-use helmcap::track::{
-    DetectParams, Detection, Labeler, MarkerDetector, detect_markers,
-};
+use helmcap::track::{DetectParams, Detection, Labeler, MarkerDetector, detect_markers};
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -327,7 +325,8 @@ fn acquisition_with_clutter(
                 let (w, h) = (f.images[c].width as f64, f.images[c].height as f64);
                 let mut d = dets[c].clone();
                 for _ in 0..clutter {
-                    let diameter = rng.random_range(params.min_dot_px..=params.max_dot_px.max(params.min_dot_px));
+                    let diameter = rng
+                        .random_range(params.min_dot_px..=params.max_dot_px.max(params.min_dot_px));
                     d.push(Detection {
                         centre_px: Point2::new(rng.random_range(0.0..w), rng.random_range(0.0..h)),
                         area_px: (0.785 * diameter * diameter) as usize,

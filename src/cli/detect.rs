@@ -19,8 +19,9 @@ use super::replay::load_dataset_and_layout;
 /// Arguments of `helmcap detect`.
 #[derive(Debug, clap::Args)]
 pub struct DetectArgs {
-    /// An image (PNG), or a session folder (then `--frame` picks the frame).
-    pub input: PathBuf,
+    /// An image (PNG, JPEG or TIFF), or a session folder (then `--frame` picks the frame).
+    #[arg(required_unless_present = "print_profile")]
+    pub input: Option<PathBuf>,
     /// The second camera's image of a stereo pair.
     pub image1: Option<PathBuf>,
     /// Frame of a session to look at.
@@ -41,6 +42,10 @@ pub struct DetectArgs {
     /// Output folder: `detect_cam0.png` (and `detect_cam1.png`), `detections.csv`.
     #[arg(long, short, default_value = "out/detect")]
     pub out: PathBuf,
+    /// Print the capture profile in use (`--profile`, else the defaults) as TOML, every
+    /// setting with its value, and stop.
+    #[arg(long)]
+    pub print_profile: bool,
 }
 
 /// What was found in one image.
@@ -51,6 +56,17 @@ struct CameraResult {
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
+    if args.print_profile {
+        let profile = match &args.profile {
+            Some(p) => CaptureProfile::load(p)?,
+            None => CaptureProfile::default(),
+        };
+        print!(
+            "{}",
+            toml::to_string(&profile).context("writing the profile as TOML")?
+        );
+        return Ok(());
+    }
     let (images, session_rig, session_profile) = load_input(&args)?;
     let profile = match args.profile.as_ref().or(session_profile.as_ref()) {
         Some(p) => CaptureProfile::load(p)?,
@@ -193,28 +209,32 @@ fn load_input(
     Option<helmcap::camera::StereoRig>,
     Option<PathBuf>,
 )> {
-    if args.input.is_dir() {
+    let input = args
+        .input
+        .as_ref()
+        .context("give an image, a stereo pair or a session folder")?;
+    if input.is_dir() {
         if args.image1.is_some() {
             bail!("give either a session folder or one or two images, not both");
         }
-        let mut replay = Replay::open(&args.input, ReplayParams::default())
-            .with_context(|| format!("opening session {}", args.input.display()))?;
+        let mut replay = Replay::open(input, ReplayParams::default())
+            .with_context(|| format!("opening session {}", input.display()))?;
         let rig = replay.rig().cloned();
         let profile = replay.info().profile.clone();
         if replay.select_frames(args.frame..=args.frame) == 0 {
             bail!(
                 "{}: the session has no frame {}",
-                args.input.display(),
+                input.display(),
                 args.frame
             );
         }
         let frame: StereoFrame = replay
             .next_frame()
-            .with_context(|| format!("{}: no frame {}", args.input.display(), args.frame))??;
+            .with_context(|| format!("{}: no frame {}", input.display(), args.frame))??;
         let [a, b] = frame.images;
         return Ok((vec![a, b], rig, profile));
     }
-    let mut images = vec![read_image(&args.input)?];
+    let mut images = vec![read_image(input)?];
     if let Some(p) = &args.image1 {
         images.push(read_image(p)?);
     }
@@ -304,7 +324,9 @@ fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> anyhow::Re
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(std::io::Error::other)?;
-        writer.write_image_data(rgb).map_err(std::io::Error::other)?;
+        writer
+            .write_image_data(rgb)
+            .map_err(std::io::Error::other)?;
         writer.finish().map_err(std::io::Error::other)
     })
     .with_context(|| format!("writing {}", path.display()))

@@ -23,6 +23,7 @@ use super::staged_file::StagedFile;
 use crate::mesh::Mesh;
 use crate::pipeline::{FrameResult, Metrics, SessionMeta, Sink, SinkError};
 use crate::timecode::Timecode;
+use nalgebra::Isometry3;
 
 /// Writes `mesh.usda` (see the module docs).
 #[derive(Debug)]
@@ -241,9 +242,32 @@ fn mesh_body(neutral: &Mesh) -> String {
     head
 }
 
+/// A rigid transform as a USD `matrix4d` literal: row-vector convention (a point is
+/// `p' = p · M`), so the rotation is transposed and the translation is the last row.
+pub(crate) fn usd_matrix(pose: &Isometry3<f64>) -> String {
+    let m = pose.to_homogeneous();
+    let mut out = String::from("(");
+    for row in 0..4 {
+        if row > 0 {
+            out.push_str(", ");
+        }
+        let _ = write!(
+            out,
+            "({}, {}, {}, {})",
+            m[(0, row)],
+            m[(1, row)],
+            m[(2, row)],
+            m[(3, row)]
+        );
+    }
+    out.push(')');
+    out
+}
+
 impl UsdSink {
     /// Test aid: what a failing write leaves (part of a frame in the file), then the
     /// roll-back the sink does on a failure.
+
     #[cfg(test)]
     pub(crate) fn simulate_failed_write(&mut self) {
         if let Some(file) = self.file.as_mut() {

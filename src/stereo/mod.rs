@@ -57,12 +57,19 @@ where
     use serde::Deserialize as _;
     use serde::de::Error as _;
     let given = toml::Table::deserialize(d)?;
-    let mut merged =
-        toml::Table::try_from(PairParams::default().triangulate).map_err(D::Error::custom)?;
+    let has_range = given.contains_key("depth_range_mm");
+    let defaults = PairParams::default().triangulate;
+    let mut merged = toml::Table::try_from(defaults.clone()).map_err(D::Error::custom)?;
     merged.extend(given);
-    toml::Value::Table(merged)
+    let mut t: TriangulateParams = toml::Value::Table(merged)
         .try_into()
-        .map_err(D::Error::custom)
+        .map_err(D::Error::custom)?;
+    // The depth range is not serialized (a capture profile derives it): keep the
+    // pairing default unless the table sets it.
+    if !has_range {
+        t.depth_range_mm = defaults.depth_range_mm;
+    }
+    Ok(t)
 }
 
 /// One paired and triangulated observation.

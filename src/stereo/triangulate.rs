@@ -19,6 +19,7 @@ pub struct TriangulateParams {
     /// Gauss-Newton iterations at most. Default 10.
     pub max_iterations: usize,
     /// Accepted depth range in cam0, mm. Default 50 to 1000.
+    #[serde(skip_serializing)]
     pub depth_range_mm: (f64, f64),
 }
 

@@ -26,6 +26,7 @@ use crate::capture::GrayImage;
 #[serde(default, deny_unknown_fields)]
 pub struct DetectParams {
     /// Look for bright dots instead of dark ones. Default false.
+    #[serde(skip_serializing)]
     pub bright: bool,
     /// Half-size `r` of the local-mean box, pixels. Default 8.
     pub window_radius_px: u32,
@@ -64,9 +65,11 @@ pub struct DetectParams {
     pub elongated_min_contrast_factor: f64,
     /// Smallest dot diameter to look for, pixels (a capture profile derives it from the
     /// dot size, the camera distances and the lens). Default 3.
+    #[serde(skip_serializing)]
     pub min_dot_px: f64,
     /// Largest dot diameter to look for, pixels (see [`DetectParams::min_dot_px`]).
     /// Default 40.
+    #[serde(skip_serializing)]
     pub max_dot_px: f64,
     /// Region of interest `(x0, y0, x1, y1)`, pixels, end exclusive (None: whole image).
     pub roi: Option<(u32, u32, u32, u32)>,
@@ -111,7 +114,10 @@ impl DetectParams {
         let min_area = (0.15 * min_dot * min_dot).floor() as usize;
         DetectParams {
             min_area_px: self.min_area_px.max(min_area),
-            max_area_px: self.max_area_px.max(max_area).max(self.min_area_px.max(min_area)),
+            max_area_px: self
+                .max_area_px
+                .max(max_area)
+                .max(self.min_area_px.max(min_area)),
             elongated_max_length_px: self.elongated_max_length_px.max(1.25 * max_dot),
             ..self.clone()
         }
@@ -167,7 +173,10 @@ impl DetectParams {
             return Err("elongated_min_contrast_factor must be non-negative".into());
         }
         if !(self.min_dot_px.is_finite() && self.min_dot_px >= 0.0) {
-            return Err(format!("min_dot_px = {} must be non-negative", self.min_dot_px));
+            return Err(format!(
+                "min_dot_px = {} must be non-negative",
+                self.min_dot_px
+            ));
         }
         if !(self.max_dot_px.is_finite()
             && self.max_dot_px >= 1.0
@@ -437,15 +446,7 @@ impl MarkerDetector {
                             }
                         }
                     }
-                    split_and_measure(
-                        image,
-                        pixels,
-                        c,
-                        0,
-                        params,
-                        out,
-                        rejected.as_deref_mut(),
-                    );
+                    split_and_measure(image, pixels, c, 0, params, out, rejected.as_deref_mut());
                 }
                 chunk = chunk_end;
             }
@@ -638,8 +639,7 @@ fn split_and_measure(
                     || d.area_px < SPLIT_MIN_AREA_FACTOR * params.min_area_px
                 {
                     Err(RejectReason::NotRound)
-                } else if d.contrast_dn < SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn
-                {
+                } else if d.contrast_dn < SPLIT_MIN_CONTRAST_FACTOR * params.min_peak_contrast_dn {
                     Err(RejectReason::LowContrast)
                 } else {
                     Ok(d)
@@ -673,9 +673,9 @@ fn split_and_measure(
         && let Some(list) = rejected
     {
         let n = pixels.len() as f64;
-        let (sx, sy) = pixels
-            .iter()
-            .fold((0.0, 0.0), |(a, b), &(x, y, _)| (a + x as f64, b + y as f64));
+        let (sx, sy) = pixels.iter().fold((0.0, 0.0), |(a, b), &(x, y, _)| {
+            (a + x as f64, b + y as f64)
+        });
         list.push(Rejection {
             centre_px: Point2::new(sx / n, sy / n),
             area_px: pixels.len(),

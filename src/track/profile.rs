@@ -327,6 +327,34 @@ mod tests {
     }
 
     #[test]
+    fn shipped_profile_lists_the_defaults() {
+        let text = include_str!("../../configs/profiles/default.toml");
+        let shipped = parse(text).unwrap();
+        // Every setting is written out, with its default value.
+        let keys = |t: &toml::Table| -> Vec<String> {
+            fn walk(prefix: &str, t: &toml::Table, out: &mut Vec<String>) {
+                for (k, v) in t {
+                    match v.as_table() {
+                        Some(sub) => walk(&format!("{prefix}{k}."), sub, out),
+                        None => out.push(format!("{prefix}{k}")),
+                    }
+                }
+            }
+            let mut out = Vec::new();
+            walk("", t, &mut out);
+            out.sort();
+            out
+        };
+        let written: toml::Table = toml::from_str(text).unwrap();
+        let all: toml::Table =
+            toml::from_str(&toml::to_string(&CaptureProfile::default()).unwrap()).unwrap();
+        assert_eq!(keys(&written), keys(&all));
+        assert_eq!(shipped.detect, DetectParams::default());
+        assert_eq!(shipped.label, LabelParams::default());
+        assert_eq!(shipped.dot_diameter_mm, 2.4);
+    }
+
+    #[test]
     fn dot_sizes_follow_the_rig() {
         // 2.4 mm dots, 100-300 mm, a 700 px lens: 4.2 to 21 px.
         let (lo, hi) = dot_size_range_px(2.4, (100.0, 300.0), 700.0, 700.0);

@@ -244,7 +244,12 @@ impl Labeler {
     }
 
     /// Keeps up to 6 distinct hypotheses with the highest scores.
-    pub(super) fn keep_top(&self, top: &mut Vec<(f64, Isometry3<f64>)>, score: f64, t: Isometry3<f64>) {
+    pub(super) fn keep_top(
+        &self,
+        top: &mut Vec<(f64, Isometry3<f64>)>,
+        score: f64,
+        t: Isometry3<f64>,
+    ) {
         if top.len() >= 6 && top.last().is_some_and(|x| x.0 >= score) {
             return;
         }

@@ -61,7 +61,6 @@ use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
 use crate::stereo::{Bundle, PairParams};
 
-
 /// Labeling settings.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
@@ -138,6 +137,7 @@ pub struct LabelParams {
     pub roi_margin_px: f64,
     /// Painted dot diameter, mm (a capture profile sets it from its `dot_diameter_mm`).
     /// Default 2.4.
+    #[serde(skip_serializing)]
     pub dot_diameter_mm: f64,
     /// A blob is consistent with a dot at its triangulated depth when its measured
     /// diameter ([`Detection::diameter_px`]) lies within this range of ratios of the
@@ -420,7 +420,6 @@ struct PassResult {
     paired: usize,
     rejected: usize,
 }
-
 
 impl Labeler {
     /// `neutral_markers_head`: each layout marker's position on the neutral mesh (head

@@ -501,4 +501,3 @@ fn rejects_bad_construction() {
         Err(LabelError::Rig(_))
     ));
 }
-
