@@ -278,7 +278,7 @@ const PRESETS: &[(&str, Goal)] = &[
     (
         "color-dots",
         Goal::Floor {
-            labeled: 0.93,
+            labeled: 0.70,
             max_wrong: 0,
         },
     ),
