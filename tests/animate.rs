@@ -16,12 +16,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::{helmcap, python_with};
 
 fn ok(out: &Output) {
     assert!(
@@ -161,7 +157,7 @@ fn animate_recovers_the_actors_weights() {
     assert_eq!(header[..2], ["frame", "timecode"]);
     for r in &rows {
         let res: f64 = r.last().unwrap().parse().unwrap();
-        assert!(res.is_finite() && res >= 0.0 && res < 2.0, "residual {res}");
+        assert!((0.0..2.0).contains(&res), "residual {res}");
     }
     let (ll_header, ll_rows) = csv(&out.join("livelink.csv"));
     assert_eq!(ll_header.len(), 63);
@@ -345,26 +341,6 @@ fn ict_rig_recovers_held_out_combinations() {
     let rms = (sq / count as f64).sqrt();
     println!("ICT held-out combinations: weight RMS {rms:.5}");
     assert!(rms < 0.05, "{rms}");
-}
-
-/// The cross-check Python (`HELMCAP_PYTHON_ENV` or ~/.cache/helmcap-python) when it
-/// imports `module`.
-fn python_with(module: &str) -> Result<PathBuf, String> {
-    let env = std::env::var_os("HELMCAP_PYTHON_ENV")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/helmcap-python")))
-        .ok_or("no HOME")?;
-    let py = env.join("bin/python");
-    match Command::new(&py)
-        .args(["-c", &format!("import {module}")])
-        .output()
-    {
-        Ok(o) if o.status.success() => Ok(py),
-        _ => Err(format!(
-            "{} cannot import {module} (run scripts/setup.sh)",
-            py.display()
-        )),
-    }
 }
 
 /// `face_skel.usda`: no errors from USD's validators, and UsdSkel's baked points at

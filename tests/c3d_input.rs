@@ -5,7 +5,7 @@
 
 #![allow(clippy::unwrap_used)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
 use helmcap::bundles::{LabelMap, read_bundles, read_bundles_with};
@@ -14,12 +14,8 @@ use helmcap::dataset::markers::{LayoutParams, generate_layout};
 use helmcap::mesh::read_obj_positions;
 use nalgebra::Point3;
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::{helmcap, python_with};
 
 fn ok(out: &Output) {
     assert!(
@@ -28,23 +24,6 @@ fn ok(out: &Output) {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-}
-
-/// The cross-check Python environment, or why it is not there.
-fn python() -> Result<PathBuf, String> {
-    let env = std::env::var_os("HELMCAP_PYTHON_ENV")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/helmcap-python")))
-        .ok_or("no HOME")?;
-    let py = env.join("bin/python");
-    let probe = Command::new(&py).args(["-c", "import c3d, numpy"]).output();
-    match probe {
-        Ok(o) if o.status.success() => Ok(py),
-        _ => Err(format!(
-            "{} cannot import c3d (run scripts/setup.sh)",
-            py.display()
-        )),
-    }
 }
 
 fn solve(bundles: &Path, markers: &Path, out: &Path, cache: &Path) -> Output {
@@ -207,7 +186,7 @@ with open({path:?}, "wb") as h:
 /// points, extra non-layout points, renamed labels through a label map.
 #[test]
 fn peer_c3d_reads_correctly() {
-    let py = match python() {
+    let py = match python_with("c3d, numpy") {
         Ok(p) => p,
         Err(why) => {
             println!("skipping the peer C3D check: {why}");

@@ -10,12 +10,8 @@ use std::process::{Command, Output};
 
 use helmcap::camera::{StereoRig, read_rig};
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn synth_targets(dir: &Path, spec: &str, calib: Option<&str>, views: usize) {
     let views = views.to_string();

@@ -6,19 +6,14 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::process::Command;
 
 use helmcap::capture::{Replay, ReplayParams};
 use helmcap::stereo::{PairParams, pair_detections};
 use helmcap::track::{DetectParams, detect_markers};
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
 
-fn helmcap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn synth(dir: &Path, frames: usize, extra: &[&str]) {
     let n = frames.to_string();

@@ -22,19 +22,14 @@
 
 use std::collections::HashMap;
 use std::path::Path;
-use std::process::Command;
 
 use helmcap::stereo::{TriangulateParams, triangulate};
 use nalgebra::Point2;
 use rand::SeedableRng;
 use rand_distr_free::normal;
 
-fn helmcap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn run_ok(args: &[&str]) -> String {
     let out = helmcap(args);
@@ -111,6 +106,12 @@ fn read_tracks(dir: &Path) -> HashMap<(usize, usize, String), Point2<f64>> {
         .collect()
 }
 
+/// The true projections of the markers in one image: (marker, pixel).
+type ImageTruth<'a> = Vec<(&'a str, Point2<f64>)>;
+
+/// A stereo observation: the pixel in cam0 and in cam1.
+type PixelPair = [Point2<f64>; 2];
+
 /// The figures of one preset.
 #[derive(Debug)]
 struct Figures {
@@ -145,7 +146,7 @@ fn evaluate(session: &Path, out: &Path) -> Figures {
         .collect();
     markers.sort();
     // True projections per frame and camera, to find the dot a labeled pixel is on.
-    let mut by_image: HashMap<(usize, usize), Vec<(&str, Point2<f64>)>> = HashMap::new();
+    let mut by_image: HashMap<(usize, usize), ImageTruth> = HashMap::new();
     for ((frame, cam, name), t) in &truth {
         by_image
             .entry((*frame, *cam))
@@ -162,7 +163,7 @@ fn evaluate(session: &Path, out: &Path) -> Figures {
     };
     let (mut detectable, mut labeled_detectable, mut labeled, mut wrong) = (0, 0, 0, 0);
     // Per labeled-and-right marker: the true and the labeled pixels in both cameras.
-    let mut pairs: Vec<([Point2<f64>; 2], [Point2<f64>; 2])> = Vec::new();
+    let mut pairs: Vec<(PixelPair, PixelPair)> = Vec::new();
     for (frame, name) in &markers {
         let t = [0, 1].map(|c| truth.get(&(*frame, c, name.clone())).copied());
         let (Some(t0), Some(t1)) = (t[0], t[1]) else {
@@ -193,7 +194,7 @@ fn evaluate(session: &Path, out: &Path) -> Figures {
         depth_range_mm: (1.0, 1e5),
         ..TriangulateParams::default()
     };
-    let tri = |p: &[Point2<f64>; 2]| {
+    let tri = |p: &PixelPair| {
         triangulate(&rig, &p[0], &p[1], &params)
             .ok()
             .map(|b| b.point_in_cam0)

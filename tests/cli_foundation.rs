@@ -1,15 +1,9 @@
 //! Drives the `helmcap` binary: datasets, the built-in actor, marker layouts, bad input.
 
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn helmcap(args: &[&str], cache: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .env("HELMCAP_CACHE_DIR", cache)
-        .output()
-        .expect("the helmcap binary runs")
-}
+mod common;
+use common::helmcap_cached;
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
@@ -56,7 +50,7 @@ fn every_command_has_help() {
         vec!["register", "--help"],
         vec!["bench", "pipeline", "--help"],
     ] {
-        let o = helmcap(&args, tmp.path());
+        let o = helmcap_cached(&args, tmp.path());
         assert!(o.status.success(), "{args:?}: {}", stderr(&o));
         assert!(stdout(&o).contains("Usage"), "{args:?}");
     }
@@ -67,13 +61,13 @@ fn synth_dataset_info_and_markers() {
     let tmp = tempfile::tempdir().unwrap();
     let cache = tmp.path().join("cache");
     let ds = tmp.path().join("actor");
-    let o = helmcap(&["dataset", "synth", "--out", ds.to_str().unwrap()], &cache);
+    let o = helmcap_cached(&["dataset", "synth", "--out", ds.to_str().unwrap()], &cache);
     assert!(o.status.success(), "{}", stderr(&o));
     let manifest = ds.join("manifest.toml");
     assert!(manifest.is_file());
     assert!(ds.join("jaw_weights.txt").is_file());
 
-    let o = helmcap(
+    let o = helmcap_cached(
         &["dataset", "info", "--dataset", manifest.to_str().unwrap()],
         &cache,
     );
@@ -83,7 +77,7 @@ fn synth_dataset_info_and_markers() {
     assert!(out.contains("jaw rig      pivot"), "{out}");
     // The first load wrote the cache; the second reads it and says the same.
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
-    let again = helmcap(
+    let again = helmcap_cached(
         &["dataset", "info", "--dataset", manifest.to_str().unwrap()],
         &cache,
     );
@@ -96,7 +90,7 @@ fn synth_dataset_info_and_markers() {
     assert_eq!(strip(stdout(&again)), strip(out));
 
     let csv = tmp.path().join("markers.csv");
-    let o = helmcap(
+    let o = helmcap_cached(
         &[
             "markers",
             "generate",
@@ -118,9 +112,9 @@ fn synth_dataset_info_and_markers() {
 #[test]
 fn builtin_dataset_names_work_everywhere() {
     let tmp = tempfile::tempdir().unwrap();
-    let o = helmcap(&["dataset", "info", "--dataset", "builtin:7"], tmp.path());
+    let o = helmcap_cached(&["dataset", "info", "--dataset", "builtin:7"], tmp.path());
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = helmcap(&["dataset", "info", "--dataset", "builtin:x"], tmp.path());
+    let o = helmcap_cached(&["dataset", "info", "--dataset", "builtin:x"], tmp.path());
     assert_clean_error(&o, "seed");
 }
 
@@ -131,7 +125,7 @@ fn bad_input_gives_one_clear_error_line() {
     let cache = d.join("cache");
     let missing = d.join("missing.toml");
     assert_clean_error(
-        &helmcap(
+        &helmcap_cached(
             &["dataset", "info", "--dataset", missing.to_str().unwrap()],
             &cache,
         ),
@@ -145,7 +139,7 @@ fn bad_input_gives_one_clear_error_line() {
     )
     .unwrap();
     assert_clean_error(
-        &helmcap(
+        &helmcap_cached(
             &[
                 "dataset",
                 "info",
@@ -163,7 +157,7 @@ fn bad_input_gives_one_clear_error_line() {
     )
     .unwrap();
     assert_clean_error(
-        &helmcap(
+        &helmcap_cached(
             &[
                 "dataset",
                 "info",
@@ -175,7 +169,7 @@ fn bad_input_gives_one_clear_error_line() {
         "unknown unit",
     );
 
-    let o = helmcap(
+    let o = helmcap_cached(
         &[
             "markers",
             "generate",

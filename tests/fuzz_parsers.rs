@@ -11,6 +11,8 @@
 //! one line with its cases, time, slowest case and peak memory.
 //! A failing case is written to `$TMPDIR/helmcap-fuzz-<parser>-<case>.bin`.
 
+#![allow(clippy::unwrap_used)]
+
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::time::Instant;
@@ -371,10 +373,15 @@ fn session(cases: usize) {
     }
     let frames_seed = frames_seed.into_bytes();
     std::fs::write(root.join("frames.csv"), &frames_seed).unwrap();
-    fuzz("session_toml", &[toml_seed.clone()], cases, |b| {
-        std::fs::write(root.join("session.toml"), b).unwrap();
-        Replay::open(root, ReplayParams::default()).is_ok()
-    });
+    fuzz(
+        "session_toml",
+        std::slice::from_ref(&toml_seed),
+        cases,
+        |b| {
+            std::fs::write(root.join("session.toml"), b).unwrap();
+            Replay::open(root, ReplayParams::default()).is_ok()
+        },
+    );
     std::fs::write(root.join("session.toml"), &toml_seed).unwrap();
     fuzz("frames_csv", &[frames_seed], cases, |b| {
         std::fs::write(root.join("frames.csv"), b).unwrap();

@@ -5,15 +5,11 @@
 #![allow(clippy::unwrap_used)]
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 /// The one error line of a failed run (and checks that there is exactly one, no panic).
 fn error_line(o: &Output) -> String {

@@ -16,12 +16,8 @@ use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn ok(out: &Output) -> String {
     assert!(

@@ -2,17 +2,11 @@
 
 #![allow(clippy::unwrap_used)]
 
-use std::process::Command;
-
 use helmcap::mesh::{Mesh, read_obj_positions, write_obj, write_ply};
 use nalgebra::{Point3, Rotation3, Translation3, Vector3};
 
-fn helmcap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 /// A bumpy height field over [0, 80]² mm on an `n × n` grid, as triangles.
 fn surface(n: usize, squash: f64) -> Mesh {

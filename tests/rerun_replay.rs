@@ -13,12 +13,8 @@ use std::process::{Command, Output};
 use re_log_encoding::DecoderApp;
 use rerun::log::{Chunk, LogMsg};
 
-fn helmcap(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn ok(out: &Output) {
     assert!(

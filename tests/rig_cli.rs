@@ -3,18 +3,12 @@
 
 #![allow(clippy::unwrap_used)]
 
-use std::process::Command;
-
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::dataset::{LoadOptions, load_dataset};
 use helmcap::mesh::write_obj_positions;
 
-fn helmcap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 #[test]
 fn rig_build_writes_a_dataset_that_reproduces_the_examples() {

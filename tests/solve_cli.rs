@@ -2,20 +2,14 @@
 //! that passes through the bundles (LGI, RBF), and bad input gets one clear error line.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
 use helmcap::bundles::{FrameBundles, write_bundles};
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::dataset::markers::{LayoutParams, generate_layout};
 use helmcap::mesh::read_obj_positions;
 
-fn helmcap(args: &[&str], cache: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .env("HELMCAP_CACHE_DIR", cache)
-        .output()
-        .expect("the helmcap binary runs")
-}
+mod common;
+use common::helmcap_cached;
 
 #[test]
 fn solve_writes_frames_through_the_bundles() {
@@ -52,7 +46,7 @@ fn solve_writes_frames_through_the_bundles() {
     let cache = dir.join("cache");
     for (method, format) in [("lgi", "obj"), ("rbf", "obj"), ("blendshape", "ply")] {
         let out = dir.join(method);
-        let o = helmcap(
+        let o = helmcap_cached(
             &[
                 "solve",
                 "--dataset",
@@ -90,7 +84,7 @@ fn solve_writes_frames_through_the_bundles() {
     }
     // The second LGI run reads the cached index.
     let out = dir.join("lgi2");
-    let o = helmcap(
+    let o = helmcap_cached(
         &[
             "solve",
             "--dataset",
@@ -112,7 +106,7 @@ fn solve_writes_frames_through_the_bundles() {
     // Bad input: one clear error line, no panic.
     let bad = dir.join("bad.csv");
     std::fs::write(&bad, "frame,marker,x,y,z\n0,M001,1,2,3\n0,M001,1,2,3\n").unwrap();
-    let o = helmcap(
+    let o = helmcap_cached(
         &[
             "solve",
             "--dataset",
@@ -146,7 +140,7 @@ fn dataset_build_caches_the_lgi_index() {
         "--markers",
         markers.to_str().unwrap(),
     ];
-    let o = helmcap(&args, &cache);
+    let o = helmcap_cached(&args, &cache);
     let out = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.contains("tetrahedra kept of"), "{out}");
@@ -157,14 +151,14 @@ fn dataset_build_caches_the_lgi_index() {
         .filter(|e| e.file_name().to_string_lossy().starts_with("lgi-"))
         .collect();
     assert_eq!(files.len(), 1);
-    let o = helmcap(&args, &cache);
+    let o = helmcap_cached(&args, &cache);
     let out = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.contains("read from"), "{out}");
     // A layout that does not fit the dataset: one clear error line.
     let bad = tmp.path().join("bad.csv");
     std::fs::write(&bad, "name,vertex,stabilize_weight\nM1,99999999,1\n").unwrap();
-    let o = helmcap(
+    let o = helmcap_cached(
         &[
             "dataset",
             "build",

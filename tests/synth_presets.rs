@@ -5,17 +5,12 @@
 #![allow(clippy::unwrap_used)]
 
 use std::path::Path;
-use std::process::Command;
 
 use helmcap::capture::{Replay, ReplayParams};
 use helmcap::track::profile::{CaptureProfile, Polarity};
 
-fn helmcap(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args(args)
-        .output()
-        .expect("run helmcap")
-}
+mod common;
+use common::helmcap;
 
 fn synth_ok(args: &[&str]) -> String {
     let out = helmcap(args);

@@ -61,7 +61,7 @@ pub(crate) fn parse_c3d(
     check_header(bytes).map_err(&err)?;
     // `c3dio` indexes without checks in a few places: a malformed file must still be one
     // error line, not a crash.
-    let parsed = std::panic::catch_unwind(|| c3dio::C3d::from_bytes(bytes))
+    let parsed = std::panic::catch_unwind(|| c3dio::C3d::from_bytes(bytes).map_err(Box::new))
         .map_err(|_| err("malformed file (the C3D parser gave up)".into()))?;
     let c3d = parsed.map_err(|e| err(format!("not a readable C3D file ({e:?})")))?;
     let points = &c3d.points;

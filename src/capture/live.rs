@@ -561,9 +561,9 @@ impl LiveSource {
         if !(fps > 0.0 && fps.is_finite()) {
             return Err(bad(format!("fps {fps} must be positive")));
         }
-        if !(1..=crate::limits::MAX_QUEUE_FRAMES).contains(&params.camera_queue)
-            || !(params.pair_tolerance > 0.0 && params.pair_tolerance < 1.0)
-        {
+        let queue_ok = (1..=crate::limits::MAX_QUEUE_FRAMES).contains(&params.camera_queue);
+        let tolerance_ok = params.pair_tolerance > 0.0 && params.pair_tolerance < 1.0;
+        if !(queue_ok && tolerance_ok) {
             return Err(bad(format!(
                 "`camera_queue` must be 1 to {} and `pair_tolerance` in (0, 1)",
                 crate::limits::MAX_QUEUE_FRAMES

@@ -297,6 +297,9 @@ pub struct RigStageArgs {
     pub livelink: Option<String>,
 }
 
+/// The animation sink of a take and the files it writes.
+pub type AnimationSink = (Box<dyn helmcap::pipeline::Sink>, Vec<PathBuf>);
+
 impl RigStageArgs {
     /// The animation sink when a rig or an animation export is asked for, and the files
     /// it writes.
@@ -310,7 +313,7 @@ impl RigStageArgs {
         livelink_csv: bool,
         usd_skel: bool,
         out: &Path,
-    ) -> anyhow::Result<Option<(Box<dyn helmcap::pipeline::Sink>, Vec<PathBuf>)>> {
+    ) -> anyhow::Result<Option<AnimationSink>> {
         if self.rig.is_none() && !livelink_csv && !usd_skel && self.livelink.is_none() {
             return Ok(None);
         }

@@ -116,8 +116,8 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     if let Some(l) = &labels {
         for (k, m) in l.markers.iter().enumerate() {
             if let Some(m) = m {
-                for c in 0..2 {
-                    if let Some(slot) = label_of[c].get_mut(m.detections[c]) {
+                for (of_camera, &det) in label_of.iter_mut().zip(&m.detections) {
+                    if let Some(slot) = of_camera.get_mut(det) {
                         *slot = Some(names[k].as_str());
                     }
                 }

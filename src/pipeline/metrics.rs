@@ -357,8 +357,10 @@ impl MetricsCollector {
     /// Counts the plausibility warnings of one frame (see [`PlausibilityWarnings`]).
     fn check_plausibility(&mut self, frame: &FrameResult) {
         let w = &mut self.metrics.warnings;
+        // NaN counts as far too.
         let far = |p: &nalgebra::Point3<f64>| {
-            !(p.coords.norm() <= MAX_FACE_EXTENT_MM) // NaN counts as far too
+            let norm = p.coords.norm();
+            norm.is_nan() || norm > MAX_FACE_EXTENT_MM
         };
         let far_bundles = frame
             .markers

@@ -97,7 +97,7 @@ struct LiveLinkStream {
 struct SkelFrames {
     path: PathBuf,
     neutral: std::sync::Arc<crate::mesh::Mesh>,
-    frames: Vec<(usize, Vec<f64>, Option<Isometry3<f64>>)>,
+    frames: Vec<super::usd_skel::SkelFrame>,
 }
 
 impl AnimationWriter {

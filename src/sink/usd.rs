@@ -267,7 +267,6 @@ pub(crate) fn usd_matrix(pose: &Isometry3<f64>) -> String {
 impl UsdSink {
     /// Test aid: what a failing write leaves (part of a frame in the file), then the
     /// roll-back the sink does on a failure.
-
     #[cfg(test)]
     pub(crate) fn simulate_failed_write(&mut self) {
         if let Some(file) = self.file.as_mut() {

@@ -51,6 +51,10 @@ fn float(x: f64) -> String {
     }
 }
 
+/// One frame of a skeletal animation: (frame index, weights in the rig's shape order,
+/// head pose `first_from_head` when the frame has one).
+pub type SkelFrame = (usize, Vec<f64>, Option<Isometry3<f64>>);
+
 /// Writes `face_skel.usda` atomically.
 ///
 /// `names`: the rig's shapes; `offsets(s)`: shape `s`'s displacement of every vertex
@@ -65,7 +69,7 @@ pub fn write_face_skel<'a>(
     neutral: &Mesh,
     names: &[String],
     offsets: impl Fn(usize) -> Option<&'a [f64]>,
-    frames: &[(usize, Vec<f64>, Option<Isometry3<f64>>)],
+    frames: &[SkelFrame],
     fps: f64,
 ) -> Result<(), SinkError> {
     let (Some(first), Some(last)) = (frames.first(), frames.last()) else {

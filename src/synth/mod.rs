@@ -821,7 +821,7 @@ impl NoiseStream {
 
     /// The sample for index `i` (indices must come in order from 0).
     fn sample(&mut self, i: usize) -> f32 {
-        if i % 4 == 0 {
+        if i.is_multiple_of(4) {
             // xorshift64*
             self.state ^= self.state >> 12;
             self.state ^= self.state << 25;

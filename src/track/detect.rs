@@ -301,7 +301,7 @@ impl MarkerDetector {
         &mut self,
         image: &GrayImage,
         params: &DetectParams,
-        mut rejected: Option<&mut Vec<Rejection>>,
+        rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (w, h) = (image.width as usize, image.height as usize);
         if w == 0 || h == 0 || image.data.len() != w * h {
@@ -326,7 +326,7 @@ impl MarkerDetector {
         let scaled = params.scaled_to_dot_sizes();
         self.threshold(image, &scaled, small, roi);
         let mut out = Vec::new();
-        self.components(image, &scaled, roi, &mut out, rejected.as_deref_mut());
+        self.components(image, &scaled, roi, &mut out, rejected);
         out
     }
 
@@ -343,7 +343,7 @@ impl MarkerDetector {
         params: &DetectParams,
         scales: &[usize],
         roi: (usize, usize, usize, usize),
-        mut rejected: Option<&mut Vec<Rejection>>,
+        rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (small, large) = (scales[0], scales[scales.len() - 1]);
         let scaled = params.scaled_to_dot_sizes();
@@ -357,7 +357,7 @@ impl MarkerDetector {
         };
         let mut fine = Vec::new();
         self.threshold(image, &fine_params, small, roi);
-        self.components(image, &fine_params, roi, &mut fine, rejected.as_deref_mut());
+        self.components(image, &fine_params, roi, &mut fine, rejected);
         let mut coarse = Vec::new();
         self.threshold(image, &scaled, large, roi);
         self.components(image, &scaled, roi, &mut coarse, None);
