@@ -69,3 +69,13 @@ if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import pyli
     echo "setup: could not install pylivelinkface; the Live Link UDP test skips" >&2
   fi
 fi
+
+# Blender as a Python module (bpy), which imports face_skel.usda in the animation tests.
+# It pins numpy below 2 (rerun-sdk needs 2), so it has an environment of its own.
+blender_env="${HELMCAP_BLENDER_ENV:-$HOME/.cache/helmcap-blender}"
+if [ ! -x "$blender_env/bin/python" ] || ! "$blender_env/bin/python" -c "import bpy" 2>/dev/null; then
+  echo "setup: installing Blender's bpy into $blender_env"
+  if ! { python3 -m venv "$blender_env" && "$blender_env/bin/pip" install -q bpy; }; then
+    echo "setup: could not install bpy; the Blender import test skips" >&2
+  fi
+fi

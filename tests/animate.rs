@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 mod common;
-use common::{helmcap, python_with};
+use common::{blender_python, helmcap, python_with};
 
 fn ok(out: &Output) {
     assert!(
@@ -343,14 +343,11 @@ fn ict_rig_recovers_held_out_combinations() {
     assert!(rms < 0.05, "{rms}");
 }
 
-/// `face_skel.usda`: no errors from USD's validators, and UsdSkel's baked points at
-/// every frame equal the rig evaluated at that frame's weights within 1e-4 mm.
-#[test]
-fn usd_skel_bakes_to_the_rig() {
-    let dir = tempfile::tempdir().unwrap();
-    let frames = 6;
-    let session = synth(dir.path(), frames);
-    let out = dir.path().join("anim");
+/// A synthetic take of `frames` frames animated with the built-in rig into `<dir>/anim`
+/// with `--export usd-skel`; returns that folder.
+fn animate_usd_skel(dir: &Path, frames: usize) -> PathBuf {
+    let session = synth(dir, frames);
+    let out = dir.join("anim");
     ok(&helmcap(&[
         "animate",
         "--rig",
@@ -363,6 +360,16 @@ fn usd_skel_bakes_to_the_rig() {
         "usd-skel",
         "--no-cache",
     ]));
+    out
+}
+
+/// `face_skel.usda`: no errors from USD's validators, and UsdSkel's baked points at
+/// every frame equal the rig evaluated at that frame's weights within 1e-4 mm.
+#[test]
+fn usd_skel_bakes_to_the_rig() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 6;
+    let out = animate_usd_skel(dir.path(), frames);
     let usd = out.join("face_skel.usda");
     assert!(usd.exists());
     let py = match python_with("pxr") {
@@ -436,6 +443,76 @@ print("baked")
     // rig_weights.csv has 6 decimals (5e-7 per weight, a few µm on the largest shapes)
     // and USD stores f32: 1e-4 mm holds with margin.
     assert!(worst < 1e-4, "worst {worst} mm");
+}
+
+/// Blender (its `bpy` module) imports `face_skel.usda` as a mesh with one shape key per
+/// rig shape whose animated values are the frame's weights (rig_weights.csv, within f32
+/// rounding), and the head pose as an animated transform (a transform cache) on the root.
+#[test]
+fn blender_imports_usd_skel_with_shape_keys_and_animation() {
+    let py = match blender_python() {
+        Ok(p) => p,
+        Err(why) => {
+            println!("skipping the Blender check: {why}");
+            return;
+        }
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let frames = 6;
+    let out = animate_usd_skel(dir.path(), frames);
+    let values = dir.path().join("blender.txt");
+    let script = format!(
+        r#"
+import bpy
+bpy.ops.wm.read_factory_settings(use_empty=True)
+assert bpy.ops.wm.usd_import(filepath={usd:?}) == {{"FINISHED"}}
+meshes = [o for o in bpy.data.objects if o.type == "MESH"]
+assert len(meshes) == 1, meshes
+keys = meshes[0].data.shape_keys
+assert keys is not None and keys.animation_data and keys.animation_data.action
+root = meshes[0].parent
+while root.parent:
+    root = root.parent
+assert any(c.type == "TRANSFORM_CACHE" for c in root.constraints), root.constraints
+scene = bpy.context.scene
+with open({values:?}, "w") as f:
+    for t in range({frames}):
+        scene.frame_set(t)
+        f.write(" ".join("%s=%.9g" % (b.name, b.value) for b in keys.key_blocks[1:]) + "\n")
+"#,
+        usd = out.join("face_skel.usda").to_str().unwrap(),
+        values = values.to_str().unwrap(),
+    );
+    let o = Command::new(&py).args(["-c", &script]).output().unwrap();
+    assert!(
+        o.status.success(),
+        "Blender: {}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let weights = weights_by_frame(&out.join("rig_weights.csv"));
+    let text = std::fs::read_to_string(&values).unwrap();
+    let mut worst: f64 = 0.0;
+    for (t, line) in text.lines().enumerate() {
+        let keys: Vec<(&str, f64)> = line
+            .split(' ')
+            .map(|kv| {
+                let (k, v) = kv.split_once('=').unwrap();
+                (k, v.parse().unwrap())
+            })
+            .collect();
+        assert_eq!(
+            keys.len(),
+            weights[&t].len(),
+            "frame {t}: shape keys {keys:?}"
+        );
+        for (name, value) in keys {
+            worst = worst.max((value - weights[&t][name]).abs());
+        }
+    }
+    assert_eq!(text.lines().count(), frames);
+    println!("Blender shape-key values vs rig_weights.csv: worst {worst:e}");
+    assert!(worst < 1e-6, "worst {worst}");
 }
 
 /// `replay --livelink 127.0.0.1:PORT`: pylivelinkface (an independent decoder of the Live

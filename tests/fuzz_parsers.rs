@@ -20,10 +20,10 @@ use std::time::Instant;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-use helmcap::bundles::parse_bundles;
+use helmcap::bundles::{parse_bundles, read_bundles};
 use helmcap::camera::parse_rig;
 use helmcap::capture::syncbox::{LineParser, format_line};
-use helmcap::capture::{LiveConfig, Replay, ReplayParams};
+use helmcap::capture::{GrayConversion, LiveConfig, Replay, ReplayParams, decode_gray};
 use helmcap::dataset::{Manifest, MarkerLayout};
 use helmcap::mesh::{read_obj_str, read_ply_bytes, write_obj, write_ply};
 use helmcap::sink::usd_read::parse_usda_sequence;
@@ -359,6 +359,94 @@ fn live_config(cases: usize) {
     });
 }
 
+/// Image decoding by content: 8-bit grey, 16-bit grey and RGB PNGs, a JPEG and a TIFF
+/// (what cameras and other tools write), mutated (headers that declare huge sizes, cut
+/// files, flipped bits in compressed data).
+fn images(cases: usize) {
+    use image::{ImageFormat, Luma, Rgb};
+    let (w, h) = (40u32, 30u32);
+    let level = |x: u32, y: u32| ((x * 7 + y * 13) % 256) as u8;
+    let gray = image::ImageBuffer::from_fn(w, h, |x, y| Luma([level(x, y)]));
+    let gray16 = image::ImageBuffer::from_fn(w, h, |x, y| Luma([u16::from(level(x, y)) * 257]));
+    let rgb = image::ImageBuffer::from_fn(w, h, |x, y| {
+        Rgb([level(x, y), level(y, x), level(x + y, 3)])
+    });
+    let encode = |img: &image::DynamicImage, format: ImageFormat| {
+        let mut out = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut out, format).unwrap();
+        out.into_inner()
+    };
+    let seeds = vec![
+        encode(
+            &image::DynamicImage::ImageLuma8(gray.clone()),
+            ImageFormat::Png,
+        ),
+        encode(&image::DynamicImage::ImageLuma16(gray16), ImageFormat::Png),
+        encode(&image::DynamicImage::ImageRgb8(rgb), ImageFormat::Png),
+        encode(
+            &image::DynamicImage::ImageLuma8(gray.clone()),
+            ImageFormat::Jpeg,
+        ),
+        encode(&image::DynamicImage::ImageLuma8(gray), ImageFormat::Tiff),
+    ];
+    fuzz("image", &seeds, cases, |b| {
+        decode_gray(b, GrayConversion::Luma).is_ok()
+    });
+}
+
+/// C3D marker files (read by content wherever bundles are): our own writer's file as the
+/// seed; mutated headers, parameter sections and point data.
+fn c3d(cases: usize) {
+    use helmcap::pipeline::{BundleStatus, FrameResult, MarkerResult, Metrics, SessionMeta, Sink};
+    use helmcap::sink::c3d::C3dSink;
+    use std::sync::Arc;
+    let layout = layout();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bundles.c3d");
+    let mut sink = C3dSink::new(&path);
+    sink.begin(&SessionMeta {
+        name: "fuzz".into(),
+        fps: 60.0,
+        timecode_rate: None,
+        first_frame: 0,
+        frame_count: None,
+        layout: Arc::new(layout.clone()),
+        neutral_markers_head: Arc::new(Vec::new()),
+        neutral: None,
+        face_vertices: None,
+        rig: None,
+        image_size: None,
+    })
+    .unwrap();
+    for index in 0..6 {
+        let image = helmcap::capture::GrayImage {
+            width: 1,
+            height: 1,
+            data: vec![0],
+        };
+        let mut f = FrameResult::new(index, 0, None, [image.clone(), image], layout.len());
+        for (k, m) in f.markers.iter_mut().enumerate() {
+            // One marker is missing in every other frame.
+            if k == 3 && index % 2 == 1 {
+                continue;
+            }
+            *m = MarkerResult {
+                status: BundleStatus::Observed,
+                point_in_head: Some(nalgebra::Point3::new(10.0 * k as f64, index as f64, 80.0)),
+                ..MarkerResult::MISSING
+            };
+        }
+        sink.write(&f).unwrap();
+    }
+    sink.finish(&Metrics::default()).unwrap();
+    let seed = std::fs::read(&path).unwrap();
+    let case_path = dir.path().join("case.c3d");
+    fuzz("c3d", &[seed], cases, |b| {
+        std::fs::write(&case_path, b).unwrap();
+        read_bundles(&case_path, &layout).is_ok()
+    });
+}
+
 fn session(cases: usize) {
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
@@ -451,6 +539,14 @@ fn fuzz_session_toml_and_frames_csv() {
 fn fuzz_syncbox_lines() {
     syncbox(cases(false));
 }
+#[test]
+fn fuzz_images() {
+    images(cases(false));
+}
+#[test]
+fn fuzz_c3d() {
+    c3d(cases(false));
+}
 
 // ---------------------------------------------------------------- the long run
 
@@ -469,4 +565,6 @@ fn long_fuzz_every_parser() {
     live_config(n);
     session(n);
     syncbox(n);
+    images(n);
+    c3d(n);
 }

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 mod common;
-use common::helmcap;
+use common::{helmcap, python_with};
 
 fn ok(out: &Output) {
     assert!(
@@ -133,14 +133,18 @@ fn parse_usda(path: &Path) -> (usize, Vec<usize>, usize, String) {
 
 /// Opens the USD file with Pixar's library when Python has it; prints why not otherwise.
 fn check_with_pxr(path: &Path, frames: usize, vertices: usize) {
-    let probe = Command::new("python3").args(["-c", "import pxr"]).output();
-    if !probe.map(|o| o.status.success()).unwrap_or(false) {
-        println!("skipping the pxr check: python3 cannot import pxr (pip install usd-core)");
-        return;
-    }
+    let python = match python_with("pxr") {
+        Ok(p) => p,
+        Err(why) => {
+            println!("skipping the pxr check: {why}");
+            return;
+        }
+    };
+    let head_pose = path.with_file_name("head_pose.csv");
     let script = format!(
         r#"
-from pxr import Usd, UsdGeom
+import csv
+from pxr import Gf, Usd, UsdGeom
 stage = Usd.Stage.Open({path:?})
 mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Face/face"))
 assert mesh, "no mesh"
@@ -153,17 +157,30 @@ assert len(pts) == {vertices}, len(pts)
 st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
 assert st and st.GetInterpolation() == "faceVarying"
 assert stage.GetFramesPerSecond() == stage.GetTimeCodesPerSecond()
+# /Face moves with the head: its transform at a frame is that frame's pose (head_pose.csv)
+# relative to the first one, in USD's row-vector convention.
 face = UsdGeom.Xformable(stage.GetPrimAtPath("/Face"))
 ops = face.GetOrderedXformOps()
-if ops:
-    times = ops[0].GetTimeSamples()
-    first = ops[0].Get(times[0])
-    assert all(abs(first[i][j] - (i == j)) < 1e-9 for i in range(4) for j in range(4)), first
+assert len(ops) == 1 and ops[0].GetOpType() == UsdGeom.XformOp.TypeTransform, ops
+def matrix(r):
+    q = Gf.Quatd(float(r["qw"]), float(r["qx"]), float(r["qy"]), float(r["qz"]))
+    return Gf.Matrix4d().SetTransform(Gf.Rotation(q), Gf.Vec3d(float(r["tx"]), float(r["ty"]), float(r["tz"])))
+rows = list(csv.DictReader(open({head_pose:?})))
+samples = ops[0].GetTimeSamples()
+assert [int(t) for t in samples] == [int(r["frame"]) for r in rows], (samples, len(rows))
+origin = matrix(rows[0]).GetInverse()
+worst = 0.0
+for r in rows:
+    expected = matrix(r) * origin
+    got = ops[0].Get(float(r["frame"]))
+    worst = max(worst, max(abs(got[i][j] - expected[i][j]) for i in range(4) for j in range(4)))
+assert worst < 1e-6, worst
 print("pxr ok", stage.GetTimeCodesPerSecond(), stage.GetStartTimeCode(), stage.GetEndTimeCode())
 "#,
-        path = path.to_str().unwrap()
+        path = path.to_str().unwrap(),
+        head_pose = head_pose.to_str().unwrap(),
     );
-    let out = Command::new("python3")
+    let out = Command::new(&python)
         .args(["-c", &script])
         .output()
         .unwrap();

@@ -6,13 +6,22 @@
 //! camera rate, `startTimeCode`/`endTimeCode` = the first and last frame written, and the
 //! timecode of the first and last frame (with rate) in `customLayerData`.
 //!
+//! The head pose moves the whole face: `/Face` is an `Xform` with a time-sampled
+//! `xformOp:transform`, the head's pose relative to the first frame that has one
+//! (`first_from_head`, identity on that frame; the mesh points are in the head frame), so
+//! that a DCC tool plays the stabilized face with the head's motion put back. Frames
+//! without a pose (labels lost) have no sample: USD holds the neighbouring ones.
+//!
 //! Streaming, in place: [`Sink::begin`] writes the file's start (a fixed-size room for
 //! the layer metadata, topology, UVs, rest points) and its end; each frame's points are
 //! written before the end, so the temporary file (beside `mesh.usda`) is a complete layer
 //! after every frame. [`Sink::finish`] writes the metadata into its room and publishes the
 //! file atomically. No mesh is kept in memory, and no step needs more disk space than the
 //! frames themselves: when a write fails (disk full), the file goes back to the last
-//! complete frame and is published with the frames before it.
+//! complete frame and is published with the frames before it. The head-pose samples (a
+//! few hundred bytes a frame) are kept in memory and written at the end of the take,
+//! after the mesh; a layer cut short by a crash has the meshes without them (the poses
+//! are in `head_pose.csv` too).
 
 use std::fmt::Write as _;
 use std::io::{Seek, SeekFrom, Write};
@@ -35,14 +44,21 @@ pub struct UsdSink {
     first: Option<(usize, Option<Timecode>)>,
     last: Option<(usize, Option<Timecode>)>,
     frames: usize,
+    /// The inverse of the first head pose (`head → cam0`) of the take.
+    head_origin: Option<Isometry3<f64>>,
+    /// Per written frame with a head pose: (frame index, `first_from_head`).
+    head_poses: Vec<(usize, Isometry3<f64>)>,
 }
 
 /// Bytes reserved at the start of the file for the layer metadata (written at the end of
 /// the take, padded with blanks).
 const META_BYTES: usize = 2048;
 
-/// The end of the file after the last time sample.
+/// The end of the file after the last time sample: [`MESH_END`], then the end of `/Face`.
 const TAIL: &str = "\n        }\n        uniform token subdivisionScheme = \"none\"\n    }\n}\n";
+
+/// The end of the mesh prim after the last time sample (the start of [`TAIL`]).
+const MESH_END: &str = "\n        }\n        uniform token subdivisionScheme = \"none\"\n    }\n";
 
 /// Longest `stopped` reason quoted in the metadata, characters.
 const MAX_STOPPED_CHARS: usize = 600;
@@ -58,6 +74,8 @@ impl UsdSink {
             first: None,
             last: None,
             frames: 0,
+            head_origin: None,
+            head_poses: Vec::new(),
         }
     }
 }
@@ -142,6 +160,10 @@ impl Sink for UsdSink {
             return Err(e);
         }
         back_over_tail(file)?;
+        if let Some(pose) = &fr.cam0_from_head {
+            let origin = *self.head_origin.get_or_insert_with(|| pose.inverse());
+            self.head_poses.push((fr.index, origin * pose));
+        }
         self.first.get_or_insert((fr.index, fr.timecode));
         self.last = Some((fr.index, fr.timecode));
         self.frames += 1;
@@ -153,6 +175,21 @@ impl Sink for UsdSink {
             return Ok(());
         };
         let meta = self.metadata(metrics.stopped.as_deref())?;
+        if !self.head_poses.is_empty() {
+            // The head pose replaces the end: the file grows by the samples. Without room
+            // for them the take keeps its meshes (the poses are in head_pose.csv).
+            let end = head_pose_tail(&self.head_poses);
+            let written = file
+                .write_with(|w| w.write_all(end.as_bytes()))
+                .and_then(|()| file.mark_complete());
+            if let Err(e) = written {
+                tracing::warn!(
+                    "{}: head pose not written ({e}); the meshes are kept",
+                    self.path.display()
+                );
+                roll_back(&mut file)?;
+            }
+        }
         // The metadata goes into its room at the start: no new space is needed.
         file.write_with(|w| {
             w.seek(SeekFrom::Start(0))?;
@@ -160,6 +197,19 @@ impl Sink for UsdSink {
         })?;
         file.commit()
     }
+}
+
+/// The end of the file with the head pose: the mesh closed as [`TAIL`] closes it, then
+/// the `/Face` prim's transform samples.
+fn head_pose_tail(poses: &[(usize, Isometry3<f64>)]) -> String {
+    let mut end = String::with_capacity(poses.len() * 160 + 256);
+    end.push_str(MESH_END);
+    end.push_str("    matrix4d xformOp:transform.timeSamples = {\n");
+    for (index, pose) in poses {
+        let _ = writeln!(end, "        {index}: {},", usd_matrix(pose));
+    }
+    end.push_str("    }\n    uniform token[] xformOpOrder = [\"xformOp:transform\"]\n}\n");
+    end
 }
 
 /// Back to the last complete frame after a failed write: the file is cut there and its end

@@ -305,6 +305,15 @@ mod tests {
     use crate::pipeline::{FrameResult, Metrics, SessionMeta, Sink};
     use std::sync::Arc;
 
+    /// A head pose that turns and moves with the frame index.
+    fn head_pose(index: usize) -> nalgebra::Isometry3<f64> {
+        let k = index as f64;
+        nalgebra::Isometry3::new(
+            nalgebra::Vector3::new(2.0 * k, -1.0, 150.0 + k),
+            nalgebra::Vector3::new(0.01 * k, -0.02 * k, 0.005),
+        )
+    }
+
     #[test]
     fn reads_back_what_the_usd_sink_writes() {
         let dir = tempfile::tempdir().unwrap();
@@ -339,10 +348,28 @@ mod tests {
                 .map(|p| p + nalgebra::Vector3::new(0.25 * index as f64, -1.5, 0.125))
                 .collect();
             fr.mesh = Some(Arc::new(points.clone()));
+            // Frame 4 has no head pose (labels lost).
+            fr.cam0_from_head = (index != 4).then(|| head_pose(index));
             sink.write(&fr).unwrap();
             written.push((index as f64, points));
         }
         sink.finish(&Metrics::default()).unwrap();
+        // `/Face` carries the head pose relative to the first frame's, on the frames
+        // that have one.
+        let text = std::fs::read_to_string(&path).unwrap();
+        let origin = head_pose(3).inverse();
+        let samples = text
+            .split("matrix4d xformOp:transform.timeSamples = {")
+            .nth(1)
+            .unwrap();
+        let samples = &samples[..samples.find('}').unwrap()];
+        let expected = format!(
+            "\n        3: {},\n        5: {},\n    ",
+            crate::sink::usd::usd_matrix(&(origin * head_pose(3))),
+            crate::sink::usd::usd_matrix(&(origin * head_pose(5)))
+        );
+        assert_eq!(samples, expected);
+        assert!(text.contains("uniform token[] xformOpOrder = [\"xformOp:transform\"]\n}\n"));
         let read = read_usda_sequence(&path).unwrap();
         assert_eq!(read.face_vertex_indices, neutral.face_vertices);
         assert_eq!(read.face_vertex_counts.len(), neutral.face_count());

@@ -45,3 +45,21 @@ pub fn python_with(modules: &str) -> Result<PathBuf, String> {
         )),
     }
 }
+
+/// Blender's Python module (`bpy` from PyPI) in its own environment
+/// (`HELMCAP_BLENDER_ENV`, else `~/.cache/helmcap-blender`: `bpy` pins an older numpy than
+/// the other cross-check tools), or why it is not there.
+pub fn blender_python() -> Result<PathBuf, String> {
+    let env = std::env::var_os("HELMCAP_BLENDER_ENV")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cache/helmcap-blender")))
+        .ok_or("no HOME")?;
+    let py = env.join("bin/python");
+    match Command::new(&py).args(["-c", "import bpy"]).output() {
+        Ok(o) if o.status.success() => Ok(py),
+        _ => Err(format!(
+            "{} cannot import bpy (run scripts/setup.sh)",
+            py.display()
+        )),
+    }
+}
