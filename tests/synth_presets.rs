@@ -22,11 +22,12 @@ fn synth_ok(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-const PRESETS: [&str; 8] = [
+const PRESETS: [&str; 9] = [
     "clean-far",
     "near-face",
     "wide-mixed",
     "cluttered",
+    "wiped-moles",
     "bright-dots",
     "color-dots",
     "mono16",
@@ -109,15 +110,23 @@ fn every_preset_renders_a_complete_readable_session() {
             }
             "vga" => assert_eq!((w, h), (640, 480)),
             "bright-dots" => assert_eq!(profile.polarity, Polarity::Bright),
-            "cluttered" => {
+            "cluttered" | "wiped-moles" => {
                 let d = std::fs::read_to_string(dir.join("gt/distractors.csv")).unwrap();
-                for kind in ["freckle", "mole", "hair", "smudged_dot", "wiped_dot"] {
-                    assert!(d.contains(&format!(",{kind},")), "no {kind} in distractors");
+                let kinds: &[&str] = if name == "cluttered" {
+                    &["freckle", "mole", "hair", "smudged_dot", "wiped_dot"]
+                } else {
+                    &["freckle", "mole", "wiped_dot"]
+                };
+                for kind in kinds {
+                    assert!(
+                        d.contains(&format!(",{kind},")),
+                        "{name}: no {kind} in distractors"
+                    );
                 }
             }
             _ => assert_eq!((color, depth), (0, 8), "{name}"),
         }
-        if name != "cluttered" {
+        if !["cluttered", "wiped-moles"].contains(&name) {
             assert!(!dir.join("gt/distractors.csv").exists(), "{name}");
         }
     }

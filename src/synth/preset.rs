@@ -20,11 +20,12 @@ pub struct Preset {
 }
 
 /// The preset names, in the order `--list-presets` shows them.
-pub const PRESET_NAMES: [&str; 8] = [
+pub const PRESET_NAMES: [&str; 9] = [
     "clean-far",
     "near-face",
     "wide-mixed",
     "cluttered",
+    "wiped-moles",
     "bright-dots",
     "color-dots",
     "mono16",
@@ -123,6 +124,22 @@ pub fn preset(name: &str) -> Option<Preset> {
                     boom_shadow: 0.5,
                     smudged_dots: 6,
                     wiped_dots: 3,
+                    ..SkinParams::default()
+                },
+                ..near_params()
+            },
+            rig: Some(near_rig()),
+        },
+        "wiped-moles" => Preset {
+            name: "wiped-moles",
+            summary: "near-face with 8 dots wiped off and a mole as dark as the ink beside \
+                      each (0.2-1.5 mm from where its rim was), among freckles: a missing \
+                      marker must stay missing",
+            params: SynthParams {
+                skin: SkinParams {
+                    freckles: 200,
+                    wiped_dots: 8,
+                    moles_beside_wiped_dots: true,
                     ..SkinParams::default()
                 },
                 ..near_params()

@@ -80,6 +80,10 @@ pub struct SkinParams {
     pub smudged_dots: usize,
     /// Number of dots wiped off completely. Default 0.
     pub wiped_dots: usize,
+    /// Put a mole beside every wiped dot (0.2 to 1.5 mm from where its rim was, diameter
+    /// in [`SkinParams::mole_diameter_mm`]): the spot a labeler must not take for the
+    /// missing marker. Default false.
+    pub moles_beside_wiped_dots: bool,
 }
 
 impl Default for SkinParams {
@@ -108,6 +112,7 @@ impl Default for SkinParams {
             boom_period_secs: 5.0,
             smudged_dots: 0,
             wiped_dots: 0,
+            moles_beside_wiped_dots: false,
         }
     }
 }
@@ -695,6 +700,29 @@ pub fn place(
         } else {
             DotWear::Wiped
         };
+    }
+    if params.moles_beside_wiped_dots {
+        for (m, wear) in layout.wear.iter().enumerate() {
+            if *wear != DotWear::Wiped {
+                continue;
+            }
+            let radius = 0.5 * uniform(&mut rng, params.mole_diameter_mm);
+            let gap = rng.random_range(0.2..=1.5);
+            let v = markers[m];
+            let from = pinner.at_vertex(v).ok_or_else(no_skin)?;
+            let dir = random_tangent(&pinner.skin_vertex_normal(v), &mut rng);
+            let at = pinner
+                .step(&from, &dir, surface.dot_radius_mm + gap + radius)
+                .ok_or_else(no_skin)?;
+            layout.features.push(SkinFeature {
+                kind: FeatureKind::Mole,
+                anchors: vec![at],
+                radius_mm: radius,
+                softness_mm: 0.15 * radius,
+                color: mole_color,
+                opacity: 1.0,
+            });
+        }
     }
     Ok(layout)
 }

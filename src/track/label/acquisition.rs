@@ -49,6 +49,8 @@ impl Labeler {
                 self.dot_sized(
                     &s.bundle.point_in_cam0,
                     [chosen[0][s.index0], chosen[1][s.index1]],
+                    [0.0; 2],
+                    self.params.first_sighting_size_ratio,
                 )
             })
             .map(|s| s.bundle.point_in_cam0)

@@ -143,8 +143,16 @@ pub struct LabelParams {
     /// diameter ([`Detection::diameter_px`]) lies within this range of ratios of the
     /// expected `f · dot_diameter_mm / depth`, widened by 2 px either way (the antialiased
     /// rim and blur). Blobs of another size (freckles, pores, moles of another size, the
-    /// pupils) are not taken for markers. Default 0.5 to 1.8.
+    /// pupils) are not taken for markers. The range for a marker labeled since the
+    /// last acquisition (its blob may be partly hidden by a lip or smeared by motion).
+    /// Default 0.5 to 1.8.
     pub dot_size_ratio: (f64, f64),
+    /// The range of [`LabelParams::dot_size_ratio`] for a marker's first sighting (in
+    /// acquisition, or a marker not labeled since): with no track to vouch for it, the
+    /// blob must look like a whole dot. Freckles and pores (too small), a dot merged with
+    /// a mole beside it, or a dot smeared off its place (too large) are not taken for a
+    /// marker that was never seen. Default 0.7 to 1.35.
+    pub first_sighting_size_ratio: (f64, f64),
     /// Acquisition: at most this many detections per image take part, the best by
     /// quality (bounds the time of an attempt on skin with hundreds of blobs). Default
     /// 400.
@@ -185,6 +193,7 @@ impl Default for LabelParams {
             roi_margin_px: 40.0,
             dot_diameter_mm: 2.4,
             dot_size_ratio: (0.5, 1.8),
+            first_sighting_size_ratio: (0.7, 1.35),
             acquire_max_detections: 400,
             acquire_iterations_per_frame: 150,
         }
@@ -281,9 +290,13 @@ impl LabelParams {
         if !(self.dot_diameter_mm.is_finite() && self.dot_diameter_mm > 0.0) {
             return Err("dot_diameter_mm must be positive".into());
         }
-        let (lo, hi) = self.dot_size_ratio;
-        if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
-            return Err("dot_size_ratio must be 0 <= low < high".into());
+        for (name, (lo, hi)) in [
+            ("dot_size_ratio", self.dot_size_ratio),
+            ("first_sighting_size_ratio", self.first_sighting_size_ratio),
+        ] {
+            if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
+                return Err(format!("{name} must be 0 <= low < high"));
+            }
         }
         if self.acquire_max_detections < self.acquire_min_markers {
             return Err("acquire_max_detections must be at least acquire_min_markers".into());
@@ -402,6 +415,12 @@ struct Prediction {
     pixels: [Option<Point2<f64>>; 2],
     gate_px: f64,
     gate_mm: f64,
+    /// Image motion since the last frame in each camera, pixels: a dot moving this much
+    /// during the exposure is blurred up to this much longer.
+    motion_px: [f64; 2],
+    /// The marker was not labeled since the last acquisition (its size is held to
+    /// [`LabelParams::first_sighting_size_ratio`]).
+    first_sighting: bool,
 }
 
 /// A labeled marker before it becomes output.

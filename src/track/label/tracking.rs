@@ -11,13 +11,32 @@ use crate::stereo::{Bundle, TriangulateParams, triangulate};
 
 impl Labeler {
     /// Whether detections `det` (cam0, cam1) are the size of a painted dot at `point` (cam0
-    /// frame, mm): [`super::LabelParams::dot_size_ratio`] of the expected diameter in each
-    /// camera, plus 2 px either way.
-    pub(super) fn dot_sized(&self, point: &Point3<f64>, det: [usize; 2]) -> bool {
-        let (lo, hi) = self.params.dot_size_ratio;
+    /// frame, mm).
+    ///
+    /// A disc of diameter `D` seen from any angle has a major axis between `D·σ₂` and
+    /// `D·σ₁` pixels, where `σ₁ ≥ σ₂` are the singular values of the projection's Jacobian
+    /// at the point (pixels per mm): the disc always holds a diameter perpendicular to the
+    /// line of sight (magnified at least `σ₂`), and no displacement is magnified more than
+    /// `σ₁`. On the optical axis both are `f/z`; off it, a wide pinhole lens magnifies
+    /// radially by up to `1/cos²θ` and a fisheye tangentially by `θ/sin θ`, so the bounds
+    /// follow the lens instead of one ratio for the whole image. The measured major axis
+    /// ([`crate::track::Detection::diameter_px`]) must lie within the ratios `(lo, hi)`
+    /// of that range ([`super::LabelParams::dot_size_ratio`] or, for a first sighting,
+    /// [`super::LabelParams::first_sighting_size_ratio`]), widened by 2 px either way (the
+    /// antialiased rim and defocus) and, at the top, by `motion_px` (a dot that moved that
+    /// far since the last frame is smeared along its motion by up to that much).
+    pub(super) fn dot_sized(
+        &self,
+        point: &Point3<f64>,
+        det: [usize; 2],
+        motion_px: [f64; 2],
+        (lo, hi): (f64, f64),
+    ) -> bool {
         let in_cam1 = self.rig.cam1_from_cam0 * point;
-        let depths = [point.coords.norm(), in_cam1.coords.norm()];
-        let focals = [self.rig.cam0.fx(), self.rig.cam1.fx()];
+        let cams = [
+            (&self.rig.cam0, point.coords),
+            (&self.rig.cam1, in_cam1.coords),
+        ];
         (0..2).all(|c| {
             // A detector that does not measure sizes gives NaN: no size check.
             let Some(&(measured, _)) = self.blobs[c].get(det[c]) else {
@@ -26,8 +45,13 @@ impl Labeler {
             if !measured.is_finite() {
                 return true;
             }
-            let expected = focals[c] * self.params.dot_diameter_mm / depths[c].max(1.0);
-            measured >= lo * expected - 2.0 && measured <= hi * expected + 2.0
+            let (cam, p) = &cams[c];
+            let Some((_, j)) = cam.project_with_jacobian(p) else {
+                return false;
+            };
+            let (s1, s2) = singular_values(&j);
+            let d = self.params.dot_diameter_mm;
+            measured >= lo * d * s2 - 2.0 && measured <= hi * d * s1 + 2.0 + motion_px[c]
         })
     }
 
@@ -77,11 +101,19 @@ impl Labeler {
                 };
                 let gate_px = gap_gate + p.velocity_gate_factor * motion_px + extra_gate_px;
                 let gate_mm = p.gate_3d_factor * gate_px * depth / f;
+                // Where the marker was (or would have been) in the last frame.
+                let before = self.pose.map(|last| self.project_both(&(last * t.head)));
+                let motion_px = [0, 1].map(|c| match (before.and_then(|b| b[c]), pixels[c]) {
+                    (Some(a), Some(b)) => (b - a).norm(),
+                    _ => 0.0,
+                });
                 Prediction {
                     point,
                     pixels,
                     gate_px,
                     gate_mm,
+                    motion_px,
+                    first_sighting: t.frames_since_seen.is_none(),
                 }
             })
             .collect()
@@ -237,7 +269,16 @@ impl Labeler {
             };
             let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
             ((bundle.point_in_cam0 - preds[i].point).norm() <= preds[i].gate_mm
-                && self.dot_sized(&bundle.point_in_cam0, [a, b]))
+                && self.dot_sized(
+                    &bundle.point_in_cam0,
+                    [a, b],
+                    preds[i].motion_px,
+                    if preds[i].first_sighting {
+                        p.first_sighting_size_ratio
+                    } else {
+                        p.dot_size_ratio
+                    },
+                ))
             .then_some(bundle)
         };
         let mut labels = Vec::new();
@@ -318,6 +359,19 @@ impl Labeler {
     }
 }
 
+/// The singular values `σ₁ ≥ σ₂` of a 2×3 matrix (square roots of the eigenvalues of
+/// `J·Jᵀ`).
+fn singular_values(j: &nalgebra::Matrix2x3<f64>) -> (f64, f64) {
+    let m = j * j.transpose();
+    let (a, b, c) = (m[(0, 0)], m[(1, 1)], m[(0, 1)]);
+    let mean = 0.5 * (a + b);
+    let spread = (0.25 * (a - b).powi(2) + c * c).sqrt();
+    (
+        (mean + spread).max(0.0).sqrt(),
+        (mean - spread).max(0.0).sqrt(),
+    )
+}
+
 /// Weighted Horn with outlier rejection: residuals above `max(3·median, 1 mm)` are
 /// dropped, twice. Returns the pose and the weighted RMS residual of the kept points.
 fn robust_horn(
@@ -361,4 +415,26 @@ fn robust_horn(
         den += wi;
     }
     (den > 0.0).then(|| (t, (num / den).sqrt()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::singular_values;
+    use nalgebra::{Matrix2x3, Rotation2, Rotation3, Vector3};
+
+    /// The singular values do not change under rotations on either side.
+    #[test]
+    fn singular_values_of_a_rotated_scaling() {
+        let scaling = Matrix2x3::new(3.0, 0.0, 0.0, 0.0, 2.0, 0.0);
+        let left = Rotation2::new(0.7).into_inner();
+        let right = Rotation3::from_axis_angle(&Vector3::y_axis(), 0.4).into_inner();
+        let (s1, s2) = singular_values(&(left * scaling * right));
+        assert!(
+            (s1 - 3.0).abs() < 1e-12 && (s2 - 2.0).abs() < 1e-12,
+            "{s1} {s2}"
+        );
+        // Rank one: a projection that sees only one direction.
+        let (s1, s2) = singular_values(&Matrix2x3::new(1.0, 2.0, 2.0, 0.0, 0.0, 0.0));
+        assert!((s1 - 3.0).abs() < 1e-12 && s2.abs() < 1e-6, "{s1} {s2}");
+    }
 }
