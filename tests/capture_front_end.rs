@@ -255,7 +255,7 @@ fn bad_input_is_a_clear_error() {
 /// at 1280×1024, median of 5 passes over a 60-frame session; prints the figures. Heavy:
 /// run in release with `--ignored --nocapture`.
 #[test]
-#[ignore]
+#[ignore = "a throughput figure, run in release: cargo test --release --test capture_front_end -- --ignored --nocapture"]
 fn capture_throughput() {
     let dir = tempfile::tempdir().unwrap();
     let s = dir.path();
