@@ -954,7 +954,6 @@ mod tests {
     }
 
     #[test]
-    #[ignore = "fails: a mole beside a slanted dot projects 2.9 px from it, under the test's 3 px rule"]
     fn moles_freckles_and_hair_are_dark_spots_fixed_on_the_skin() {
         let skin = SkinParams {
             freckles: 200,
@@ -1020,8 +1019,10 @@ mod tests {
                 "{kind}: {dark} of {n} dark"
             );
         }
-        // Moles never appear in the marker ground truth: their projections are not
-        // within a dot radius of any marker's.
+        // Moles never appear in the marker ground truth: a mole's centre lies outside every
+        // dot on the skin (at least the dot's radius away), so its projection lies
+        // outside the dot's projected minor half-axis (the skin foreshortens both alike;
+        // a fixed pixel distance fails beside dots seen at a slant).
         let projections = rows(dirty.path().join("gt/projections.csv"));
         for r in distractors.iter().filter(|r| r["kind"] == "mole") {
             for p in projections
@@ -1029,7 +1030,10 @@ mod tests {
                 .filter(|p| p["frame"] == r["frame"] && p["camera"] == r["camera"])
             {
                 let d = (num(p, "u") - num(r, "u")).hypot(num(p, "v") - num(r, "v"));
-                assert!(d > 3.0, "mole at a marker: {r:?} {p:?}");
+                assert!(
+                    d > 0.5 * num(p, "minor_axis_px"),
+                    "mole at a marker: {r:?} {p:?}"
+                );
             }
         }
         // The slip moved the moles between frame 0 and 2 (they are on the skin, not on
