@@ -1,6 +1,7 @@
 //! helmcap: facial performance capture from helmet-mounted stereo cameras.
 //!
 //! Layers, bottom up (a module may use only those above it in this list):
+//! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics).
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
@@ -36,6 +37,7 @@ pub mod enhance;
 pub mod lgi;
 pub mod limits;
 pub mod mesh;
+pub mod numeric;
 pub mod pipeline;
 pub mod rig;
 pub mod sink;

@@ -154,15 +154,9 @@ pub fn horn_similarity(
     ))
 }
 
-/// Median of a slice (copied; NaN-free input).
+/// Median of a slice (copied; NaN-free input); 0 when empty.
 fn median(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    let mut v = values.to_vec();
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
-    *m
+    crate::numeric::upper_median(values).unwrap_or(0.0)
 }
 
 /// Robust weighted absolute orientation (see the module docs): finds `target_from_source`

@@ -124,9 +124,8 @@ impl Sink for RssSink {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+fn median(v: Vec<f64>) -> f64 {
+    helmcap::numeric::upper_median(&v).unwrap_or(f64::NAN)
 }
 
 /// The pipeline configuration of the built-in actor with LGI.

@@ -155,9 +155,8 @@ pub struct RerunBenchArgs {
     no_normals: bool,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+fn median(v: Vec<f64>) -> f64 {
+    helmcap::numeric::upper_median(&v).unwrap_or(f64::NAN)
 }
 
 /// Cost of logging frames to an `.rrd` file: per-frame time on the calling thread, wall

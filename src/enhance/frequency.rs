@@ -5,8 +5,8 @@ use nalgebra::{Point3, Vector3};
 use nalgebra_sparse::{CooMatrix, CsrMatrix};
 
 use super::EnhanceError;
-use super::poisson::SpdFactor;
 use crate::mesh::{Mesh, cotangent_laplacian_of, uniform_laplacian};
+use crate::numeric::SpdFactor;
 
 /// Tuning of the low-pass filter [`LowPass`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

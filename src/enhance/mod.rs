@@ -118,3 +118,12 @@ fn rest_triangle_areas(
     }
     Ok(crate::mesh::triangle_areas_of(mesh, rest))
 }
+
+impl From<crate::numeric::FactorError> for EnhanceError {
+    fn from(e: crate::numeric::FactorError) -> Self {
+        Self::Factorization {
+            what: e.what,
+            reason: e.reason,
+        }
+    }
+}

@@ -1,57 +1,12 @@
 //! Gradient-domain (Poisson) mesh reconstruction with a prefactored Laplacian
-//! (Bermano et al. 2014 §5.5, after Botsch et al. 2006), and the sparse Cholesky helpers
-//! the module shares.
+//! (Bermano et al. 2014 §5.5, after Botsch et al. 2006).
 
-use faer::linalg::solvers::Solve;
-use faer::sparse::{SparseColMat, Triplet};
-use faer::{Mat, Side};
 use nalgebra::{Matrix3, Point3, Vector3};
 use nalgebra_sparse::CsrMatrix;
 
 use super::EnhanceError;
 use crate::mesh::{Mesh, boundary_loops, cotangent_laplacian_of};
-
-/// A sparse symmetric positive-definite matrix factored once by sparse Cholesky (`faer`),
-/// solved by back-substitution afterwards.
-pub(crate) struct SpdFactor {
-    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
-    n: usize,
-}
-
-impl SpdFactor {
-    /// Factors `a` (#N × #N, symmetric positive definite; both triangles stored).
-    pub(crate) fn new(a: &CsrMatrix<f64>, what: &'static str) -> Result<Self, EnhanceError> {
-        let n = a.nrows();
-        let triplets: Vec<Triplet<usize, usize, f64>> = a
-            .triplet_iter()
-            .map(|(i, j, &v)| Triplet::new(i, j, v))
-            .collect();
-        let mat =
-            SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &triplets).map_err(|e| {
-                EnhanceError::Factorization {
-                    what,
-                    reason: format!("{e:?}"),
-                }
-            })?;
-        let llt = mat
-            .sp_cholesky(Side::Lower)
-            .map_err(|e| EnhanceError::Factorization {
-                what,
-                reason: format!("{e:?}"),
-            })?;
-        Ok(Self { llt, n })
-    }
-
-    /// Solves `A X = B` for the three coordinate columns of `rhs` (#N), in place.
-    pub(crate) fn solve3(&self, rhs: &mut [Vector3<f64>]) {
-        debug_assert_eq!(rhs.len(), self.n);
-        let mut b = Mat::<f64>::from_fn(self.n, 3, |i, c| rhs[i][c]);
-        self.llt.solve_in_place(b.as_mut());
-        for (i, r) in rhs.iter_mut().enumerate() {
-            *r = Vector3::new(b[(i, 0)], b[(i, 1)], b[(i, 2)]);
-        }
-    }
-}
+use crate::numeric::SpdFactor;
 
 /// Tuning of [`PoissonSolver`].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

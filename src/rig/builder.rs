@@ -53,8 +53,8 @@ use rayon::prelude::*;
 use super::RigError;
 use crate::baseline::blendshape::box_qp;
 use crate::dataset::{Dataset, Shape};
-use crate::enhance::poisson::SpdFactor;
 use crate::enhance::{PoissonParams, rest_frame_inverses, triangle_frame};
+use crate::numeric::SpdFactor;
 
 /// Tuning of [`RigBuilder`]; defaults are the paper's values (Li et al. 2010 §3-4).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -359,7 +359,7 @@ impl RigBuilder {
     ///
     /// # Errors
     /// [`RigError::InvalidParam`] for bad params, [`RigError::Input`] when `neutral` does
-    /// not fit the template or the template has no shapes, [`RigError::Enhance`] when a
+    /// not fit the template or the template has no shapes, [`RigError::Factor`] when a
     /// reconstruction system cannot be factored.
     pub fn new(
         template: &Dataset,
@@ -929,7 +929,7 @@ impl RigBuilder {
 /// Returns the absolute actor shapes (n × #V).
 ///
 /// # Errors
-/// [`RigError::Input`] when `neutral` does not fit the template; [`RigError::Enhance`]
+/// [`RigError::Input`] when `neutral` does not fit the template; [`RigError::Factor`]
 /// when a system cannot be factored.
 pub fn deformation_transfer(
     template: &Dataset,

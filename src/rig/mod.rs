@@ -32,7 +32,6 @@ pub use from_lgi::{Combination, FromLgiParams, LgiRig, combination_name, rig_fro
 pub use register::{Registration, RegistrationParams, register};
 
 use crate::dataset::DatasetError;
-use crate::enhance::EnhanceError;
 use crate::lgi::LgiError;
 use crate::mesh::MeshError;
 
@@ -54,7 +53,7 @@ pub enum RigError {
     Input(String),
     /// A sparse factorization failed (a mesh with a degenerate region).
     #[error(transparent)]
-    Enhance(#[from] EnhanceError),
+    Factor(#[from] crate::numeric::FactorError),
     /// Reading or writing a mesh failed.
     #[error(transparent)]
     Mesh(#[from] MeshError),

@@ -40,8 +40,8 @@ use rayon::prelude::*;
 
 use super::RigError;
 use crate::align::horn::horn_alignment;
-use crate::enhance::poisson::SpdFactor;
 use crate::mesh::{Mesh, Topology, edges, vertex_normals_of};
+use crate::numeric::SpdFactor;
 
 /// Tuning of [`register`]. Lengths are relative to the template's RMS radius (the
 /// registration runs in normalized coordinates).
@@ -237,7 +237,7 @@ impl Scan {
 ///
 /// # Errors
 /// [`RigError::InvalidParam`] for bad params, [`RigError::Input`] for a landmark vertex
-/// out of range or a degenerate template, [`RigError::Enhance`] when a system cannot be
+/// out of range or a degenerate template, [`RigError::Factor`] when a system cannot be
 /// factored.
 pub fn register(
     template: &Mesh,
