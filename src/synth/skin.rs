@@ -595,6 +595,14 @@ pub fn place(
         let l = luma(brown);
         brown.map(|x| (x / l * params.mole_albedo).min(1.0))
     };
+    let mole = |at, radius: f64| SkinFeature {
+        kind: FeatureKind::Mole,
+        anchors: vec![at],
+        radius_mm: radius,
+        softness_mm: 0.15 * radius,
+        color: mole_color,
+        opacity: 1.0,
+    };
     for k in 0..params.moles {
         let radius = 0.5 * uniform(&mut rng, params.mole_diameter_mm);
         let beside = !markers.is_empty()
@@ -612,14 +620,7 @@ pub fn place(
                 .random_point(&cumulative, &mut rng)
                 .ok_or_else(no_skin)?
         };
-        layout.features.push(SkinFeature {
-            kind: FeatureKind::Mole,
-            anchors: vec![at],
-            radius_mm: radius,
-            softness_mm: 0.15 * radius,
-            color: mole_color,
-            opacity: 1.0,
-        });
+        layout.features.push(mole(at, radius));
     }
     // Hair: across dots, in the brows, or stray.
     let hair_color = {
@@ -714,14 +715,7 @@ pub fn place(
             let at = pinner
                 .step(&from, &dir, surface.dot_radius_mm + gap + radius)
                 .ok_or_else(no_skin)?;
-            layout.features.push(SkinFeature {
-                kind: FeatureKind::Mole,
-                anchors: vec![at],
-                radius_mm: radius,
-                softness_mm: 0.15 * radius,
-                color: mole_color,
-                opacity: 1.0,
-            });
+            layout.features.push(mole(at, radius));
         }
     }
     Ok(layout)

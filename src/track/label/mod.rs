@@ -139,13 +139,14 @@ pub struct LabelParams {
     /// Default 2.4.
     #[serde(skip_serializing)]
     pub dot_diameter_mm: f64,
-    /// A blob is consistent with a dot at its triangulated depth when its measured
+    /// A blob is consistent with a dot at its triangulated position when its measured
     /// diameter ([`Detection::diameter_px`]) lies within this range of ratios of the
-    /// expected `f · dot_diameter_mm / depth`, widened by 2 px either way (the antialiased
-    /// rim and blur). Blobs of another size (freckles, pores, moles of another size, the
-    /// pupils) are not taken for markers. The range for a marker labeled since the
-    /// last acquisition (its blob may be partly hidden by a lip or smeared by motion).
-    /// Default 0.5 to 1.8.
+    /// major axes a dot of `dot_diameter_mm` can have there through the lens (from its
+    /// smallest to its largest magnification, see `Labeler::dot_sized`), widened by 2 px
+    /// either way (the antialiased rim and blur). Blobs of another size (freckles, pores,
+    /// moles of another size, the pupils) are not taken for markers. The range for a
+    /// marker labeled since the last acquisition (its blob may be partly hidden by a lip
+    /// or smeared by motion). Default 0.5 to 1.8.
     pub dot_size_ratio: (f64, f64),
     /// The range of [`LabelParams::dot_size_ratio`] for a marker's first sighting (in
     /// acquisition, or a marker not labeled since): with no track to vouch for it, the
