@@ -43,6 +43,7 @@ use nalgebra::Point3;
 
 use crate::atomic_file::write_atomically;
 use crate::dataset::MarkerLayout;
+use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 
 /// Errors from reading or writing a bundles CSV.
 #[derive(Debug, thiserror::Error)]
@@ -157,42 +158,18 @@ impl LabelMap {
     /// # Errors
     /// As [`LabelMap::read_csv`].
     pub fn parse_csv(text: &str, name: &str) -> Result<Self, BundlesError> {
-        let err = |line: usize, message: String| BundlesError::Parse {
-            path: name.to_string(),
-            line,
-            message,
+        let format = NamePairsFormat {
+            columns: ["c3d_label", "marker"],
+            what: "label",
+            extra_columns: true,
         };
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
-        let (hline, header) = lines
-            .next()
-            .ok_or_else(|| err(1, "empty file: expected header c3d_label,marker".into()))?;
-        let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-        if cols.len() < 2 || cols[..2] != ["c3d_label", "marker"] {
-            return Err(err(
-                hline,
-                format!("header {header:?} should be c3d_label,marker"),
-            ));
-        }
-        let mut map = HashMap::new();
-        let mut seen: HashMap<String, usize> = HashMap::new();
-        for (line, row) in lines {
-            let f: Vec<&str> = row.split(',').map(str::trim).collect();
-            if f.len() < 2 || f[0].is_empty() || f[1].is_empty() {
-                return Err(err(line, "expected c3d_label,marker".into()));
-            }
-            if let Some(first) = seen.insert(f[0].to_string(), line) {
-                return Err(err(
-                    line,
-                    format!("label {} is mapped twice (first on line {first})", f[0]),
-                ));
-            }
-            map.insert(f[0].to_string(), f[1].to_string());
-        }
-        Ok(Self { map })
+        let rows =
+            parse_name_pairs(text, &format).map_err(|(line, message)| BundlesError::Parse {
+                path: name.to_string(),
+                line,
+                message,
+            })?;
+        Ok(Self::new(rows))
     }
 }
 

@@ -1,7 +1,8 @@
 //! helmcap: facial performance capture from helmet-mounted stereo cameras.
 //!
 //! Layers, bottom up (a module may use only those above it in this list):
-//! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics).
+//! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics); the
+//!   two-column name files (label and name maps) are read by one private parser.
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
@@ -37,6 +38,7 @@ pub mod enhance;
 pub mod lgi;
 pub mod limits;
 pub mod mesh;
+mod name_pairs;
 pub mod numeric;
 pub mod pipeline;
 pub mod rig;

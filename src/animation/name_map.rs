@@ -1,6 +1,7 @@
 //! Name maps: a rig's shape names mapped to a target convention (CSV `shape,target`),
 //! and Apple's 52 ARKit blendshape names.
 
+use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
@@ -181,40 +182,17 @@ impl NameMap {
     /// # Errors
     /// As [`NameMap::read_csv`].
     pub fn parse_csv(text: &str, name: &str) -> Result<Self, NameMapError> {
-        let err = |line: usize, message: String| NameMapError::Parse {
-            path: name.to_string(),
-            line,
-            message,
+        let format = NamePairsFormat {
+            columns: ["shape", "target"],
+            what: "shape",
+            extra_columns: false,
         };
-        let mut lines = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
-        let (hline, header) = lines
-            .next()
-            .ok_or_else(|| err(1, "empty file: expected header shape,target".into()))?;
-        if header.replace(' ', "") != "shape,target" {
-            return Err(err(
-                hline,
-                format!("header {header:?} should be shape,target"),
-            ));
-        }
-        let mut rows = Vec::new();
-        let mut seen: HashMap<String, usize> = HashMap::new();
-        for (line, row) in lines {
-            let f: Vec<&str> = row.split(',').map(str::trim).collect();
-            if f.len() != 2 || f[0].is_empty() || f[1].is_empty() {
-                return Err(err(line, format!("{row:?}: expected shape,target")));
-            }
-            if let Some(first) = seen.insert(f[0].to_string(), line) {
-                return Err(err(
-                    line,
-                    format!("shape {} is mapped twice (first on line {first})", f[0]),
-                ));
-            }
-            rows.push((f[0].to_string(), f[1].to_string()));
-        }
+        let rows =
+            parse_name_pairs(text, &format).map_err(|(line, message)| NameMapError::Parse {
+                path: name.to_string(),
+                line,
+                message,
+            })?;
         Ok(Self { rows })
     }
 
