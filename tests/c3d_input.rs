@@ -15,7 +15,7 @@ use helmcap::mesh::read_obj_positions;
 use nalgebra::Point3;
 
 mod common;
-use common::{helmcap, python_with};
+use common::{helmcap, helmcap_cached, python_with};
 
 fn ok(out: &Output) {
     assert!(
@@ -27,8 +27,8 @@ fn ok(out: &Output) {
 }
 
 fn solve(bundles: &Path, markers: &Path, out: &Path, cache: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args([
+    helmcap_cached(
+        &[
             "solve",
             "--dataset",
             "builtin",
@@ -38,10 +38,9 @@ fn solve(bundles: &Path, markers: &Path, out: &Path, cache: &Path) -> Output {
             bundles.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
-        ])
-        .env("HELMCAP_CACHE_DIR", cache)
-        .output()
-        .unwrap()
+        ],
+        cache,
+    )
 }
 
 /// helmcap's own `bundles.c3d` (from a replay) read back gives the same meshes as
@@ -268,8 +267,8 @@ fn peer_c3d_reads_correctly() {
     )
     .unwrap();
     let out = dir.path().join("solved");
-    let o = Command::new(env!("CARGO_BIN_EXE_helmcap"))
-        .args([
+    let o = helmcap_cached(
+        &[
             "solve",
             "--dataset",
             "builtin",
@@ -281,10 +280,9 @@ fn peer_c3d_reads_correctly() {
             map_csv.to_str().unwrap(),
             "--out",
             out.to_str().unwrap(),
-        ])
-        .env("HELMCAP_CACHE_DIR", dir.path().join("cache"))
-        .output()
-        .unwrap();
+        ],
+        &dir.path().join("cache"),
+    );
     ok(&o);
     assert!(out.join("frame_000013.obj").exists());
 

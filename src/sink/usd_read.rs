@@ -305,6 +305,23 @@ mod tests {
     use crate::pipeline::{FrameResult, Metrics, SessionMeta, Sink};
     use std::sync::Arc;
 
+    /// The session the sink tests write: `neutral` as the mesh, at `fps` from `first_frame`.
+    fn session(neutral: &Arc<crate::mesh::Mesh>, fps: f64, first_frame: usize) -> SessionMeta {
+        SessionMeta {
+            name: "t".into(),
+            fps,
+            timecode_rate: None,
+            first_frame,
+            frame_count: None,
+            layout: Arc::new(Default::default()),
+            neutral_markers_head: Arc::new(Vec::new()),
+            neutral: Some(neutral.clone()),
+            face_vertices: None,
+            rig: None,
+            image_size: None,
+        }
+    }
+
     /// A head pose that turns and moves with the frame index.
     fn head_pose(index: usize) -> nalgebra::Isometry3<f64> {
         let k = index as f64;
@@ -320,20 +337,7 @@ mod tests {
         let path = dir.path().join("mesh.usda");
         let neutral = Arc::new(crate::mesh::test_meshes::grid(4, 2.0));
         let mut sink = crate::sink::UsdSink::new(&path);
-        sink.begin(&SessionMeta {
-            name: "t".into(),
-            fps: 60.0,
-            timecode_rate: None,
-            first_frame: 3,
-            frame_count: None,
-            layout: Arc::new(Default::default()),
-            neutral_markers_head: Arc::new(Vec::new()),
-            neutral: Some(neutral.clone()),
-            face_vertices: None,
-            rig: None,
-            image_size: None,
-        })
-        .unwrap();
+        sink.begin(&session(&neutral, 60.0, 3)).unwrap();
         let mut written = Vec::new();
         for index in 3..6 {
             let image = GrayImage {
@@ -395,20 +399,7 @@ mod tests {
         let path = dir.path().join("mesh.usda");
         let neutral = Arc::new(crate::mesh::test_meshes::grid(3, 1.0));
         let mut sink = crate::sink::UsdSink::new(&path);
-        sink.begin(&SessionMeta {
-            name: "t".into(),
-            fps: 30.0,
-            timecode_rate: None,
-            first_frame: 0,
-            frame_count: None,
-            layout: Arc::new(Default::default()),
-            neutral_markers_head: Arc::new(Vec::new()),
-            neutral: Some(neutral.clone()),
-            face_vertices: None,
-            rig: None,
-            image_size: None,
-        })
-        .unwrap();
+        sink.begin(&session(&neutral, 30.0, 0)).unwrap();
         let image = GrayImage {
             width: 1,
             height: 1,
