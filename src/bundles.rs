@@ -367,13 +367,7 @@ pub fn parse_bundles_with(
                 "no row names a marker of the layout (file has e.g. {}; layout has e.g. {}): \
                  wrong marker layout?",
                 some.join(", "),
-                layout
-                    .markers
-                    .iter()
-                    .take(3)
-                    .map(|m| m.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                layout_examples(layout)
             ),
         });
     }
@@ -421,6 +415,17 @@ pub fn write_bundles(
         path: path.display().to_string(),
         source,
     })
+}
+
+/// The first few marker names of a layout, for errors that say what was expected.
+pub(crate) fn layout_examples(layout: &MarkerLayout) -> String {
+    layout
+        .markers
+        .iter()
+        .take(3)
+        .map(|m| m.name.as_str())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 #[cfg(test)]

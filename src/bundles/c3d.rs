@@ -135,13 +135,7 @@ pub(crate) fn parse_c3d(
             "no point label names a marker of the layout (file has e.g. {}; layout has e.g. \
              {}): wrong marker layout, or give --label-map CSV (c3d_label,marker)",
             some.join(", "),
-            layout
-                .markers
-                .iter()
-                .take(3)
-                .map(|m| m.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
+            super::layout_examples(layout)
         )));
     }
     let first = u64::from(points.first_frame.max(1));
