@@ -9,7 +9,7 @@ use std::collections::HashSet;
 use std::io::Write;
 use std::path::Path;
 
-use nalgebra::Vector3;
+use nalgebra::{Point3, Vector3};
 
 use super::Dataset;
 use crate::atomic_file::write_atomically;
@@ -207,6 +207,39 @@ impl MarkerLayout {
             path: path.display().to_string(),
             source,
         })
+    }
+
+    /// The markers' positions (head frame, layout order) on each of `dataset`'s shapes,
+    /// and half-way between the neutral and each shape: the expressions marker labeling
+    /// may find the face in when it starts from nothing
+    /// ([`crate::track::Labeler::set_expression_templates`]). Markers on vertices the
+    /// shapes do not have are left at their neutral positions.
+    pub fn expression_templates(&self, dataset: &Dataset) -> Vec<Vec<Point3<f64>>> {
+        let neutral = &dataset.neutral.positions;
+        let at = |positions: &[Point3<f64>], v: u32| {
+            positions
+                .get(v as usize)
+                .or_else(|| neutral.get(v as usize))
+                .copied()
+                .unwrap_or_else(Point3::origin)
+        };
+        let mut out = Vec::with_capacity(2 * dataset.shapes.len());
+        for shape in &dataset.shapes {
+            let full: Vec<Point3<f64>> = self
+                .markers
+                .iter()
+                .map(|m| at(&shape.positions, m.vertex))
+                .collect();
+            let half = self
+                .markers
+                .iter()
+                .zip(&full)
+                .map(|(m, q)| at(neutral, m.vertex) + (q - at(neutral, m.vertex)) * 0.5)
+                .collect();
+            out.push(half);
+            out.push(full);
+        }
+        out
     }
 
     /// Checks that every marker sits on a face vertex of `dataset`.

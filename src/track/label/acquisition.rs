@@ -8,6 +8,10 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 use super::{LabelStats, Labeler, PassResult};
+
+/// Factor by which an expression template's fit must beat the neutral's to start the
+/// tracks from it (see `Labeler::choose_expression`).
+const TEMPLATE_MARGIN: f64 = 1.1;
 use crate::align::horn_alignment;
 use crate::stereo::pair_detections;
 
@@ -62,8 +66,9 @@ impl Labeler {
             return None;
         }
         let pose = self.register(&points)?;
+        self.choose_expression(&pose, pixels);
         let p = &self.params;
-        // Label with the tracking pass around the registered neutral.
+        // Label with the tracking pass around the registered neutral (or expression).
         let preds = self.predictions(&pose, 1, 0.0);
         let pass = self.label_pass(&preds, pixels);
         let (pose, rms) = self.estimate_pose(&pass.labels)?;
@@ -202,6 +207,57 @@ impl Labeler {
             return None;
         }
         Some(best)
+    }
+
+    /// Starts the tracks from the expression template (or the neutral) whose predictions
+    /// under `pose` the detections fit best. A face caught with its jaw wide open has chin
+    /// markers 30 mm from their neutral places, where the lip markers are: labeled around
+    /// the neutral, lip and chin labels swap. Each candidate is scored like the
+    /// registration (MSAC: Σ `1 − (d/gate)²` over its labels, `d` the bundle's distance
+    /// from its prediction); a template must beat the neutral by
+    /// [`TEMPLATE_MARGIN`] to be taken, so a face near neutral never starts from an
+    /// expression that explains clutter.
+    fn choose_expression(&mut self, pose: &Isometry3<f64>, pixels: &[Vec<Option<Point2<f64>>>; 2]) {
+        if self.templates.is_empty() {
+            return;
+        }
+        let score = |this: &Self| -> f64 {
+            let preds = this.predictions(pose, 1, 0.0);
+            let pass = this.label_pass(&preds, pixels);
+            pass.labels
+                .iter()
+                .map(|l| {
+                    let pr = &preds[l.marker];
+                    let d = (l.bundle.point_in_cam0 - pr.point).norm();
+                    (1.0 - (d / pr.gate_mm.max(1e-9)).powi(2)).max(0.0)
+                })
+                .sum()
+        };
+        let neutral = score(self);
+        let mut best: (f64, Option<usize>) = (neutral * TEMPLATE_MARGIN, None);
+        let templates = std::mem::take(&mut self.templates);
+        for (k, t) in templates.iter().enumerate() {
+            for (track, q) in self.tracks.iter_mut().zip(t) {
+                track.head = *q;
+            }
+            let s = score(self);
+            if s > best.0 {
+                best = (s, Some(k));
+            }
+        }
+        let start = best.1.map_or(&self.neutral, |k| &templates[k]).clone();
+        for (track, q) in self.tracks.iter_mut().zip(&start) {
+            track.head = *q;
+        }
+        if let Some(k) = best.1 {
+            tracing::debug!(
+                template = k,
+                score = best.0,
+                neutral,
+                "acquiring from an expression"
+            );
+        }
+        self.templates = templates;
     }
 
     pub(super) fn centroid(&self) -> Point3<f64> {

@@ -407,6 +407,9 @@ pub struct Labeler {
     blobs: [Vec<(f64, f64)>; 2],
     /// An acquisition under way over several frames.
     acquisition: acquisition::Search,
+    /// Marker positions (head frame, layout order) of expressions acquisition tries
+    /// besides the neutral ([`Labeler::set_expression_templates`]).
+    templates: Vec<Vec<Point3<f64>>>,
 }
 
 /// A marker's prediction for one labeling pass.
@@ -541,6 +544,7 @@ impl Labeler {
             blobs: [Vec::new(), Vec::new()],
             acquisition: acquisition::Search::default(),
             params,
+            templates: Vec::new(),
         })
     }
 
@@ -559,6 +563,23 @@ impl Labeler {
     /// The head pose (head → cam0) of the last labeled frame; None while acquiring.
     pub fn head_pose(&self) -> Option<Isometry3<f64>> {
         self.pose
+    }
+
+    /// Expressions the face may hold when acquisition starts (a take cut mid-performance,
+    /// a chunk of a long take, tracking lost on a wide-open jaw): each the layout's
+    /// markers' positions (head frame, mm, layout order) on one shape of the actor's
+    /// dataset. Acquisition labels under the neutral and under each of these, and keeps
+    /// the expression whose predictions the detections fit best (see `acquire`). Templates
+    /// of another marker count or with non-finite positions are left out (their number is
+    /// returned).
+    pub fn set_expression_templates(&mut self, templates: Vec<Vec<Point3<f64>>>) -> usize {
+        let m = self.neutral.len();
+        let before = templates.len();
+        self.templates = templates
+            .into_iter()
+            .filter(|t| t.len() == m && t.iter().all(|p| p.coords.iter().all(|v| v.is_finite())))
+            .collect();
+        before - self.templates.len()
     }
 
     /// Forget all tracks (next frame re-acquires by registration).
