@@ -6,8 +6,9 @@ set -euo pipefail
 
 # opencv-doc: OpenCV's stereo sample images (left01..14.jpg, right01..14.jpg) that the
 # calibration tests use; ffmpeg: ffprobe reads video timecode tracks (tests write one).
+# chromium: the report tests load the dailies pages in a headless browser (they skip without it).
 packages=(build-essential pkg-config curl ca-certificates clang libclang-dev libopencv-dev
-          libv4l-dev libudev-dev opencv-doc ffmpeg)
+          libv4l-dev libudev-dev opencv-doc ffmpeg chromium)
 missing=()
 for p in "${packages[@]}"; do
   if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
@@ -67,6 +68,15 @@ if [ -x "$python_env/bin/python" ] && ! "$python_env/bin/python" -c "import pyli
   echo "setup: installing pylivelinkface into $python_env"
   if ! "$python_env/bin/pip" install -q pylivelinkface; then
     echo "setup: could not install pylivelinkface; the Live Link UDP test skips" >&2
+  fi
+fi
+
+# The Open Job Description CLI (`openjd check`, `openjd run`), which checks and runs the farm
+# job bundles `helmcap farm job` writes, exactly as a farm worker would.
+if [ -x "$python_env/bin/python" ] && [ ! -x "$python_env/bin/openjd" ]; then
+  echo "setup: installing openjd-cli into $python_env"
+  if ! "$python_env/bin/pip" install -q openjd-cli; then
+    echo "setup: could not install openjd-cli; the farm job tests skip" >&2
   fi
 fi
 

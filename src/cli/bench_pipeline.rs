@@ -145,7 +145,9 @@ fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfi
     // The pipeline's own default.
     let params = super::replay::SolveStageArgs::default().lgi_params()?;
     let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
+    let templates = layout.expression_templates(&ds);
     let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);
+    config.expression_templates = Arc::new(templates);
     config.solver = Some(Solver::lgi(index, &params)?);
     config.neutral = Some(Arc::new(ds.neutral.clone()));
     config.face_vertices = Some(ds.face_vertices.clone());

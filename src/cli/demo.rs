@@ -120,6 +120,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         enhance: args.enhance,
         solve_stage: Default::default(),
         frames: None,
+        warm_up: 0,
         no_solve: false,
         skip_bad_frames: false,
         queue: 4,

@@ -187,6 +187,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.detect = profile.detect_params(Some(&config.rig));
     config.label = profile.label_params();
+    config.expression_templates = Arc::new(layout.expression_templates(&ds));
     config.channel_capacity = args.queue;
     config.name = "live".into();
     config.timecode_rate = Some(source.timecode_rate());

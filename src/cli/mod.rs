@@ -10,12 +10,14 @@ mod dataset;
 mod demo;
 mod detect;
 mod enhance;
+mod farm;
 mod ingest;
 mod live;
 mod markers;
 mod record;
 mod register;
 mod replay;
+mod report;
 mod retime;
 mod rig;
 mod solve;
@@ -80,6 +82,11 @@ enum Command {
     Live(live::LiveArgs),
     /// Turn a pair of camera videos into a session folder of PNG frames.
     Ingest(ingest::IngestArgs),
+    /// A dailies report: self-contained HTML pages with plots for one or more takes.
+    Report(report::ReportArgs),
+    /// Dailies on a render farm: OpenJD job bundles, and joining a take's chunks.
+    #[command(subcommand)]
+    Farm(farm::FarmCommand),
 }
 
 /// Sets up logging to stderr: warnings and progress notes by default, more with `-v`.
@@ -119,6 +126,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Record(a) => record::run(a),
         Command::Live(a) => live::run(a),
         Command::Ingest(a) => ingest::run(a),
+        Command::Report(a) => report::run(a),
+        Command::Farm(c) => farm::run(c),
     }
 }
 

@@ -10,6 +10,7 @@ use anyhow::{Context, bail};
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
 use helmcap::dataset::{Dataset, MarkerLayout};
 use helmcap::enhance::Enhancer;
+use helmcap::farm::{Fingerprint, TakeManifest, list_outputs, session_fingerprint};
 use helmcap::lgi::LgiParams;
 use helmcap::pipeline::{
     FrameResult, GroundTruth, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
@@ -88,6 +89,11 @@ pub struct ReplayArgs {
     /// frames.csv; for splitting long takes.
     #[arg(long, value_name = "RANGE")]
     pub frames: Option<String>,
+    /// Frames to run before --frames' first without writing them: they warm up tracking,
+    /// stabilization and the solve's temporal preference, so a chunk of a long take
+    /// starts as a single pass over the whole take would be at that frame.
+    #[arg(long, value_name = "N", default_value_t = 0, requires = "frames")]
+    pub warm_up: usize,
     /// Stop after labeling and stabilization (no dense solve, no meshes).
     #[arg(long)]
     pub no_solve: bool,
@@ -221,15 +227,36 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         },
     )
     .with_context(|| format!("opening session {}", args.session.display()))?;
+    let take_frames = match (source.info().frames.first(), source.info().frames.last()) {
+        (Some(a), Some(b)) => (a.0, b.0),
+        _ => bail!("session {} has no frames", args.session.display()),
+    };
+    let mut written = take_frames;
+    let mut warm_up_from = None;
     if let Some(r) = &args.frames {
         let range = parse_frame_range(r)?;
-        let kept = source.select_frames(range.clone());
-        if kept == 0 {
+        let in_range = |i: usize| range.contains(&i);
+        let frames = &source.info().frames;
+        let (Some(first), Some(last)) = (
+            frames.iter().map(|f| f.0).find(|&i| in_range(i)),
+            frames.iter().map(|f| f.0).rfind(|&i| in_range(i)),
+        ) else {
             bail!(
                 "--frames {r}: the session has no frame in {}..={}",
                 range.start(),
                 range.end()
             );
+        };
+        written = (*range.start(), (*range.end()).min(take_frames.1));
+        let run_from = range.start().saturating_sub(args.warm_up);
+        source.select_frames(run_from..=last);
+        if args.warm_up > 0 {
+            warm_up_from = source
+                .info()
+                .frames
+                .first()
+                .map(|f| f.0)
+                .filter(|&f| f < first);
         }
     }
     let rig = source
@@ -251,15 +278,25 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
     config.detect = profile.detect_params(Some(&config.rig));
     config.label = profile.label_params();
+    config.expression_templates = Arc::new(layout.expression_templates(&ds));
     config.channel_capacity = args.queue;
-    config.name = args
+    let take_name = args
         .session
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "take".into());
+    config.name = take_name.clone();
     config.timecode_rate = info.timecode_rate;
-    config.frame_count = Some(info.frames.len());
-    config.first_frame = info.frames.first().map_or(0, |f| f.0);
+    config.write_from = written.0;
+    config.frame_count = Some(
+        info.frames
+            .iter()
+            .filter(|f| f.0 >= written.0 && f.0 <= written.1)
+            .count(),
+    );
+    config.first_frame = written.0;
+    let settings = settings_fingerprint(args, &config, &ds, &profile)?;
+    let markers: Vec<String> = layout.markers.iter().map(|m| m.name.clone()).collect();
     if let Some(stages) = dense_stages(
         &ds,
         &layout,
@@ -293,7 +330,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     args.view
         .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
     if !args.quiet {
-        let bar = indicatif::ProgressBar::new(info.frames.len() as u64);
+        let bar = indicatif::ProgressBar::new(config.frame_count.unwrap_or(0) as u64);
         bar.set_style(
             indicatif::ProgressStyle::with_template(
                 "replay [{bar:30}] {pos}/{len} frames {per_sec} {msg}",
@@ -304,15 +341,88 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     }
     let stop = stop_flag();
     let source: Box<dyn FrameSource> = Box::new(source);
+    let fps = source.fps();
     let result = helmcap::pipeline::run(source, config, sinks, stop);
     match result {
-        Ok(metrics) => Ok(ReplayOutcome { metrics, outputs }),
+        Ok(metrics) => {
+            // Written last: its presence says the take is complete (see farm::manifest).
+            if metrics.stopped.is_none()
+                && let Some(collector) = metrics.collector.as_deref()
+            {
+                let manifest = TakeManifest {
+                    format: helmcap::farm::manifest::MANIFEST_FORMAT.into(),
+                    helmcap: env!("CARGO_PKG_VERSION").into(),
+                    take: take_name,
+                    session: std::path::absolute(&args.session)
+                        .unwrap_or_else(|_| args.session.clone()),
+                    session_fingerprint: session_fingerprint(&args.session)
+                        .with_context(|| format!("reading session {}", args.session.display()))?,
+                    settings_fingerprint: settings,
+                    take_frames,
+                    frames: written,
+                    warm_up_from,
+                    fps,
+                    markers,
+                    wall_secs: metrics.wall_secs,
+                    files: list_outputs(out)
+                        .with_context(|| format!("listing {}", out.display()))?,
+                    metrics: collector.clone(),
+                };
+                manifest.write(out)?;
+                outputs.push(out.join(helmcap::farm::MANIFEST_FILE));
+            }
+            Ok(ReplayOutcome { metrics, outputs })
+        }
         Err(e) => Err(anyhow::Error::new(e).context(format!(
             "replay of {} stopped; the outputs in {} hold the frames completed before the error",
             args.session.display(),
             out.display()
         ))),
     }
+}
+
+/// Fingerprint of everything that shapes a take's outputs besides its frames: the
+/// calibration, capture settings, layout, dataset, solve settings, exports and flags, by
+/// value (not by path: the same files mounted elsewhere give the same fingerprint).
+fn settings_fingerprint(
+    args: &ReplayArgs,
+    config: &PipelineConfig,
+    ds: &Dataset,
+    profile: &CaptureProfile,
+) -> anyhow::Result<String> {
+    let mut fp = Fingerprint::default();
+    fp.add(format!("{:?}", config.rig).as_bytes())
+        .add(format!("{profile:?}").as_bytes())
+        .add(format!("{:?}", config.layout).as_bytes())
+        .add(ds.name.as_bytes())
+        .add(&ds.neutral.vertex_count().to_le_bytes());
+    let manifest = Path::new(&args.dataset);
+    if manifest.is_file() {
+        fp.add_file(manifest)
+            .with_context(|| format!("reading {}", manifest.display()))?;
+    } else {
+        fp.add(args.dataset.as_bytes());
+    }
+    let mut exports = args.export.clone();
+    exports.sort_by_key(|e| format!("{e:?}"));
+    exports.dedup();
+    let lgi = if args.no_solve {
+        None
+    } else {
+        Some(args.solve_stage.lgi_params()?)
+    };
+    fp.add(
+        format!(
+            "{exports:?} {lgi:?} keyframes={} enhance={} no_solve={} skip_bad_frames={} rig={:?}",
+            args.solve_stage.solve_keyframes,
+            args.enhance,
+            args.no_solve,
+            args.skip_bad_frames,
+            args.rig_stage
+        )
+        .as_bytes(),
+    );
+    Ok(fp.hex())
 }
 
 /// The capture profile at `path`, or the built-in defaults.
@@ -426,12 +536,14 @@ pub fn load_dataset_and_layout(
 pub struct DenseStages {
     solver: Solver,
     enhancer: Option<Arc<Enhancer>>,
+    keyframes: usize,
 }
 
 impl DenseStages {
     /// Switches the stages on in `config` (with the dataset's neutral and face vertices).
     pub fn install(self, config: &mut PipelineConfig, ds: &Dataset) {
         config.solver = Some(self.solver);
+        config.solve_keyframe_interval = self.keyframes;
         config.neutral = Some(Arc::new(ds.neutral.clone()));
         config.face_vertices = Some(ds.face_vertices.clone());
         config.enhancer = self.enhancer;
@@ -439,7 +551,7 @@ impl DenseStages {
 }
 
 /// Settings of the pipeline's dense solve (`replay`, `live`).
-#[derive(Debug, Clone, Default, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct SolveStageArgs {
     /// Force the mesh through every bundle (LGI's exact settings, as `helmcap solve` uses by
     /// default) instead of the pipeline's default for triangulated bundles (LGI's noisy
@@ -451,6 +563,24 @@ pub struct SolveStageArgs {
     /// leaves out keep the pipeline's defaults (see --exact-bundles).
     #[arg(long, value_name = "TOML")]
     pub lgi_params: Option<PathBuf>,
+    /// The solve forgets the previous frame's shape choices (LGI's temporal preference) on
+    /// frame numbers that are multiples of N (0: never), so that a chunk of a take warmed
+    /// up past such a frame solves exactly as one pass over the whole take does.
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_SOLVE_KEYFRAMES)]
+    pub solve_keyframes: usize,
+}
+
+/// Default of `--solve-keyframes`: half a second at 60 fps.
+pub const DEFAULT_SOLVE_KEYFRAMES: usize = 30;
+
+impl Default for SolveStageArgs {
+    fn default() -> Self {
+        Self {
+            exact_bundles: false,
+            lgi_params: None,
+            solve_keyframes: DEFAULT_SOLVE_KEYFRAMES,
+        }
+    }
 }
 
 impl SolveStageArgs {
@@ -532,7 +662,11 @@ pub fn dense_stages(
     } else {
         None
     };
-    Ok(Some(DenseStages { solver, enhancer }))
+    Ok(Some(DenseStages {
+        solver,
+        enhancer,
+        keyframes: solve_stage.solve_keyframes,
+    }))
 }
 
 /// The file sinks every pipeline run writes into `out` (CSV and metrics), plus one per

@@ -19,8 +19,10 @@ const BIN_MIN_MS: f64 = 1e-3;
 /// Number of bins (1 µs · 1.02^n reaches 100 s at n ≈ 930).
 const BIN_COUNT: usize = 940;
 
-/// A latency distribution in constant memory (see the module docs).
-#[derive(Debug, Clone, PartialEq)]
+/// A latency distribution in constant memory (see the module docs). Saved (in a chunk's
+/// `take.json`) as its non-empty bins.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(into = "HistogramFile", try_from = "HistogramFile")]
 pub struct LatencyHistogram {
     bins: Vec<u64>,
     count: u64,
@@ -39,7 +41,63 @@ impl Default for LatencyHistogram {
     }
 }
 
+/// [`LatencyHistogram`] as saved: the non-empty bins as `[bin, count]` pairs.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct HistogramFile {
+    bins: Vec<(usize, u64)>,
+    count: u64,
+    sum_ms: f64,
+    max_ms: f64,
+}
+
+impl From<LatencyHistogram> for HistogramFile {
+    fn from(h: LatencyHistogram) -> Self {
+        Self {
+            bins: h
+                .bins
+                .iter()
+                .enumerate()
+                .filter(|(_, n)| **n > 0)
+                .map(|(i, n)| (i, *n))
+                .collect(),
+            count: h.count,
+            sum_ms: h.sum_ms,
+            max_ms: h.max_ms,
+        }
+    }
+}
+
+impl TryFrom<HistogramFile> for LatencyHistogram {
+    type Error = String;
+
+    fn try_from(f: HistogramFile) -> Result<Self, String> {
+        let mut h = Self::default();
+        for (i, n) in f.bins {
+            *h.bins
+                .get_mut(i)
+                .ok_or_else(|| format!("latency bin {i} is past the last ({BIN_COUNT})"))? += n;
+        }
+        if h.bins.iter().sum::<u64>() != f.count {
+            return Err("latency bins do not add up to their count".into());
+        }
+        h.count = f.count;
+        h.sum_ms = f.sum_ms;
+        h.max_ms = f.max_ms;
+        Ok(h)
+    }
+}
+
 impl LatencyHistogram {
+    /// Adds every sample of `other`.
+    pub fn merge(&mut self, other: &LatencyHistogram) {
+        for (a, b) in self.bins.iter_mut().zip(&other.bins) {
+            *a += b;
+        }
+        self.count += other.count;
+        self.sum_ms += other.sum_ms;
+        self.max_ms = self.max_ms.max(other.max_ms);
+    }
+
     /// Adds one sample, ms (non-finite or negative samples are ignored).
     pub fn add(&mut self, ms: f64) {
         if !(ms.is_finite() && ms >= 0.0) {
@@ -238,15 +296,34 @@ pub struct Metrics {
     /// Plausibility warnings (see [`PlausibilityWarnings`]).
     #[serde(default)]
     pub warnings: PlausibilityWarnings,
+    /// Frames run before the take's range only to warm the stages up (a chunk of a long
+    /// take, `replay --warm-up`); counted in no other figure.
+    #[serde(default)]
+    pub warm_up_frames: u64,
+    /// The collector these figures came from, for joining the chunks of a take
+    /// ([`MetricsCollector::merge`]); not part of `metrics.json`.
+    #[serde(skip)]
+    pub collector: Option<Box<MetricsCollector>>,
 }
 
-/// Accumulates [`Metrics`] frame by frame (in the sink thread).
-#[derive(Debug, Clone, Default)]
+/// Accumulates [`Metrics`] frame by frame (in the sink thread). It is saved whole (a
+/// chunk's `take.json`), and the collectors of consecutive chunks of a take merge into
+/// the one a single pass would have ([`MetricsCollector::merge`]): counts and sums add,
+/// latency histograms add bin by bin, so the percentiles are those of all frames, not an
+/// average of the chunks' percentiles.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MetricsCollector {
+    #[serde(with = "stage_map")]
     stages: BTreeMap<Stage, LatencyHistogram>,
     end_to_end: LatencyHistogram,
     metrics: Metrics,
+    #[serde(with = "timecode_file")]
     first_tc: Option<Timecode>,
+    /// Index of the first frame out with a timecode (where a merge checks the step from
+    /// the previous chunk's last timecode).
+    #[serde(default)]
+    first_tc_index: Option<usize>,
+    #[serde(with = "timecode_file")]
     last_tc: Option<Timecode>,
     bundle_sq_sum: f64,
     bundle_count: u64,
@@ -255,6 +332,7 @@ pub struct MetricsCollector {
     mesh_count: u64,
     solves_meshes: bool,
     /// Index and timecode of the previous frame out.
+    #[serde(with = "indexed_timecode_file")]
     previous_tc: Option<(usize, Timecode)>,
     /// Frames out so far without any observed marker, while none had one.
     unlabeled_start_frames: u64,
@@ -323,7 +401,10 @@ impl MetricsCollector {
             m.gaps.mesh_missing += 1;
         }
         if let Some(tc) = frame.timecode {
-            self.first_tc.get_or_insert(tc);
+            if self.first_tc.is_none() {
+                self.first_tc = Some(tc);
+                self.first_tc_index = Some(frame.index);
+            }
             self.last_tc = Some(tc);
         }
         m.frame_range = Some(match m.frame_range {
@@ -408,44 +489,159 @@ impl MetricsCollector {
             }
         }
         if let Some(tc) = frame.timecode {
-            if let Some((prev_index, prev)) = self.previous_tc
-                && prev.rate == tc.rate
-            {
-                let k = i64::from(tc.subframes.max(1));
-                let at = |t: &Timecode| t.frame_count as i64 * k + i64::from(t.subframe);
-                let step = at(&tc) - at(&prev);
-                let frames = (frame.index as i64 - prev_index as i64).max(1);
-                // A whole day of timecode wraps at midnight.
-                let day = tc.rate.frames_per_day() as i64 * k;
-                let step = if step < -day / 2 { step + day } else { step };
-                // Every camera frame has its own label with sub-frames, or when the camera
-                // runs at the timecode rate; else (60 fps on 24 fps code) labels repeat.
-                let fps = self.metrics.source_fps;
-                let unique = tc.subframes > 1 || (fps - tc.rate.fps()).abs() <= 0.01 * fps;
-                if unique && step == 0 && tc.subframes == prev.subframes {
-                    if w.timecode_repeats == 0 {
-                        tracing::warn!(
-                            "frame {}: timecode {} repeats the previous frame's (sync not \
-                             locked to the cameras?); counted in metrics.json",
-                            frame.index,
-                            tc.to_string_with_rate()
-                        );
-                    }
-                    w.timecode_repeats += 1;
-                } else if unique && (step < 0 || step > frames) {
-                    if w.timecode_jumps == 0 {
-                        tracing::warn!(
-                            "frame {}: timecode jumps from {} to {}; counted in metrics.json",
-                            frame.index,
-                            prev.to_string_with_rate(),
-                            tc.to_string_with_rate()
-                        );
-                    }
-                    w.timecode_jumps += 1;
-                }
-            }
-            self.previous_tc = Some((frame.index, tc));
+            self.check_timecode_step(frame.index, tc);
         }
+    }
+
+    /// Counts a repeat or jump from the previous frame's timecode to frame `index`'s.
+    fn check_timecode_step(&mut self, index: usize, tc: Timecode) {
+        let w = &mut self.metrics.warnings;
+        if let Some((prev_index, prev)) = self.previous_tc
+            && prev.rate == tc.rate
+        {
+            let k = i64::from(tc.subframes.max(1));
+            let at = |t: &Timecode| t.frame_count as i64 * k + i64::from(t.subframe);
+            let step = at(&tc) - at(&prev);
+            let frames = (index as i64 - prev_index as i64).max(1);
+            // A whole day of timecode wraps at midnight.
+            let day = tc.rate.frames_per_day() as i64 * k;
+            let step = if step < -day / 2 { step + day } else { step };
+            // Every camera frame has its own label with sub-frames, or when the camera
+            // runs at the timecode rate; else (60 fps on 24 fps code) labels repeat.
+            let fps = self.metrics.source_fps;
+            let unique = tc.subframes > 1 || (fps - tc.rate.fps()).abs() <= 0.01 * fps;
+            if unique && step == 0 && tc.subframes == prev.subframes {
+                if w.timecode_repeats == 0 {
+                    tracing::warn!(
+                        "frame {}: timecode {} repeats the previous frame's (sync not \
+                     locked to the cameras?); counted in metrics.json",
+                        index,
+                        tc.to_string_with_rate()
+                    );
+                }
+                w.timecode_repeats += 1;
+            } else if unique && (step < 0 || step > frames) {
+                if w.timecode_jumps == 0 {
+                    tracing::warn!(
+                        "frame {}: timecode jumps from {} to {}; counted in metrics.json",
+                        index,
+                        prev.to_string_with_rate(),
+                        tc.to_string_with_rate()
+                    );
+                }
+                w.timecode_jumps += 1;
+            }
+        }
+        self.previous_tc = Some((index, tc));
+    }
+
+    /// The first frame out that has a timecode, and its timecode.
+    pub fn first_timecode(&self) -> Option<(usize, Timecode)> {
+        self.first_tc_index.zip(self.first_tc)
+    }
+
+    /// First and last frame index out.
+    pub fn frame_range(&self) -> Option<(usize, usize)> {
+        self.metrics.frame_range
+    }
+
+    /// Sets the count of warm-up frames (run but not written).
+    pub fn set_warm_up_frames(&mut self, frames: u64) {
+        self.metrics.warm_up_frames = frames;
+    }
+
+    /// Adds the frames of `later`, the collector of the next chunk of the same take (its
+    /// frames all after this one's): afterwards this collector holds what one collector
+    /// over both chunks' frames would. The step from this chunk's last timecode to
+    /// `later`'s first is checked as any other frame's.
+    ///
+    /// # Errors
+    /// The collectors are not of the same take (marker counts, rates or solving differ)
+    /// or not in order.
+    pub fn merge(&mut self, later: &MetricsCollector) -> Result<(), String> {
+        let (a, b) = (&self.metrics, &later.metrics);
+        if a.labeling.markers != b.labeling.markers {
+            return Err(format!(
+                "{} markers against {}",
+                a.labeling.markers, b.labeling.markers
+            ));
+        }
+        if a.source_fps != b.source_fps || self.solves_meshes != later.solves_meshes {
+            return Err("the chunks ran at other frame rates or with other stages".into());
+        }
+        if let (Some((_, end)), Some((start, _))) = (a.frame_range, b.frame_range)
+            && start <= end
+        {
+            return Err(format!(
+                "frames {start}.. come after frame {end}: the chunks overlap or are out of order"
+            ));
+        }
+        for (stage, h) in &later.stages {
+            self.stages.entry(*stage).or_default().merge(h);
+        }
+        self.end_to_end.merge(&later.end_to_end);
+        // Plausibility: the start-of-take check goes on while nothing was labeled.
+        if !self.any_labeled {
+            self.unlabeled_start_frames += later.unlabeled_start_frames;
+            self.any_labeled = later.any_labeled;
+            let fps = self.metrics.source_fps;
+            if fps > 0.0 && self.unlabeled_start_frames as f64 >= NO_LABEL_WARNING_SECS * fps {
+                self.metrics.warnings.nothing_labeled_at_start = true;
+            }
+        }
+        if let (Some(index), Some(tc)) = (later.first_tc_index, later.first_tc) {
+            self.check_timecode_step(index, tc);
+        }
+        let m = &mut self.metrics;
+        let b = &later.metrics;
+        m.frames_in += b.frames_in;
+        m.frames_out += b.frames_out;
+        m.frames_dropped += b.frames_dropped;
+        m.warm_up_frames += b.warm_up_frames;
+        let l = &mut m.labeling;
+        l.observed += b.labeling.observed;
+        l.gap_filled += b.labeling.gap_filled;
+        l.dropped += b.labeling.dropped;
+        l.missing += b.labeling.missing;
+        l.reacquired += b.labeling.reacquired;
+        l.rejected += b.labeling.rejected;
+        l.acquiring_frames += b.labeling.acquiring_frames;
+        let g = &mut m.gaps;
+        g.source += b.gaps.source;
+        g.pose_held += b.gaps.pose_held;
+        g.pose_missing += b.gaps.pose_missing;
+        g.mesh_missing += b.gaps.mesh_missing;
+        let w = &mut m.warnings;
+        w.bundles_far_outside_face += b.warnings.bundles_far_outside_face;
+        w.meshes_far_outside_face += b.warnings.meshes_far_outside_face;
+        w.timecode_repeats += b.warnings.timecode_repeats;
+        w.timecode_jumps += b.warnings.timecode_jumps;
+        m.frame_range = match (m.frame_range, b.frame_range) {
+            (Some((first, _)), Some((_, last))) => Some((first, last)),
+            (x, y) => x.or(y),
+        };
+        if let Some(acc) = &b.accuracy {
+            let mine = m.accuracy.get_or_insert_with(Default::default);
+            mine.bundle_frames += acc.bundle_frames;
+            mine.mesh_frames += acc.mesh_frames;
+            mine.mesh_max_mm = mine.mesh_max_mm.max(acc.mesh_max_mm);
+        }
+        if m.stopped.is_none() {
+            m.stopped.clone_from(&b.stopped);
+        }
+        self.bundle_sq_sum += later.bundle_sq_sum;
+        self.bundle_count += later.bundle_count;
+        self.mesh_sq_sum += later.mesh_sq_sum;
+        self.mesh_sum += later.mesh_sum;
+        self.mesh_count += later.mesh_count;
+        if self.first_tc.is_none() {
+            self.first_tc = later.first_tc;
+            self.first_tc_index = later.first_tc_index;
+        }
+        if later.last_tc.is_some() {
+            self.last_tc = later.last_tc;
+        }
+        Ok(())
     }
 
     /// Marks the take as stopped early, with the reason.
@@ -456,6 +652,7 @@ impl MetricsCollector {
     /// The metrics so far, with `wall_secs` of running time.
     pub fn snapshot(&self, wall_secs: f64) -> Metrics {
         let mut m = self.metrics.clone();
+        m.collector = Some(Box::new(self.clone()));
         m.wall_secs = wall_secs;
         m.throughput_fps = if wall_secs > 0.0 {
             m.frames_out as f64 / wall_secs
@@ -500,9 +697,177 @@ impl MetricsCollector {
     }
 }
 
+/// Stage-keyed maps saved with the stages' names as keys.
+mod stage_map {
+    use std::collections::BTreeMap;
+
+    use super::{LatencyHistogram, Stage};
+
+    pub fn serialize<S: serde::Serializer>(
+        map: &BTreeMap<Stage, LatencyHistogram>,
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        use serde::Serialize;
+        map.iter()
+            .map(|(k, v)| (k.name(), v))
+            .collect::<BTreeMap<_, _>>()
+            .serialize(s)
+    }
+
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(
+        d: D,
+    ) -> Result<BTreeMap<Stage, LatencyHistogram>, D::Error> {
+        use serde::Deserialize;
+        let named = BTreeMap::<String, LatencyHistogram>::deserialize(d)?;
+        named
+            .into_iter()
+            .map(|(k, v)| {
+                Stage::ALL
+                    .into_iter()
+                    .find(|s| s.name() == k)
+                    .map(|s| (s, v))
+                    .ok_or_else(|| serde::de::Error::custom(format!("unknown stage {k:?}")))
+            })
+            .collect()
+    }
+}
+
+/// A timecode saved as its label with rate and its sub-frames per frame (the label alone
+/// does not say how many sub-frames a frame has).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct TimecodeFile {
+    timecode: String,
+    subframes: u32,
+}
+
+impl TimecodeFile {
+    fn new(tc: &Timecode) -> Self {
+        Self {
+            timecode: tc.to_string_with_rate(),
+            subframes: tc.subframes,
+        }
+    }
+
+    fn timecode<E: serde::de::Error>(&self) -> Result<Timecode, E> {
+        let mut tc: Timecode = self.timecode.parse().map_err(E::custom)?;
+        tc.subframes = self.subframes.max(1);
+        Ok(tc)
+    }
+}
+
+mod timecode_file {
+    use super::{Timecode, TimecodeFile};
+
+    pub fn serialize<S: serde::Serializer>(tc: &Option<Timecode>, s: S) -> Result<S::Ok, S::Error> {
+        use serde::Serialize;
+        tc.as_ref().map(TimecodeFile::new).serialize(s)
+    }
+
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<Timecode>, D::Error> {
+        use serde::Deserialize;
+        Option::<TimecodeFile>::deserialize(d)?
+            .map(|f| f.timecode())
+            .transpose()
+    }
+}
+
+mod indexed_timecode_file {
+    use super::{Timecode, TimecodeFile};
+
+    pub fn serialize<S: serde::Serializer>(
+        tc: &Option<(usize, Timecode)>,
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        use serde::Serialize;
+        tc.as_ref()
+            .map(|(i, t)| (*i, TimecodeFile::new(t)))
+            .serialize(s)
+    }
+
+    pub fn deserialize<'de, D: serde::Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<(usize, Timecode)>, D::Error> {
+        use serde::Deserialize;
+        Option::<(usize, TimecodeFile)>::deserialize(d)?
+            .map(|(i, f)| f.timecode().map(|t| (i, t)))
+            .transpose()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Frame `i` of a synthetic take: every third marker observed, the rest missing,
+    /// latencies varying over three orders of magnitude, timecode with one jump.
+    fn frame(i: usize) -> FrameResult {
+        let image = crate::capture::GrayImage {
+            width: 1,
+            height: 1,
+            data: vec![0],
+        };
+        let rate = crate::timecode::TimecodeRate::FPS_30;
+        // A jump of 5 timecode frames at frame 40 (the first of the second chunk below).
+        let tc = Timecode::from_frame_count(rate, 108_000 + i as u64 + if i >= 40 { 5 } else { 0 });
+        let mut f = FrameResult::new(i, 0, Some(tc), [image.clone(), image], 6);
+        for (k, m) in f.markers.iter_mut().enumerate() {
+            if (k + i).is_multiple_of(3) {
+                m.status = BundleStatus::Observed;
+            }
+        }
+        f.timings.set(Stage::Track, 0.05 * (1 + i % 50) as f64);
+        f.timings.set(Stage::Solve, 2.0 + (i % 7) as f64);
+        f
+    }
+
+    #[test]
+    fn collectors_of_chunks_merge_into_the_single_pass_collector() {
+        let latency = |i: usize| 0.1 + (i * 37 % 101) as f64;
+        let mut single = MetricsCollector::new(6, 30.0, false);
+        let mut chunks = [
+            MetricsCollector::new(6, 30.0, false),
+            MetricsCollector::new(6, 30.0, false),
+        ];
+        for i in 0..100 {
+            let f = frame(i);
+            single.frame_out(&f, latency(i), None);
+            chunks[usize::from(i >= 40)].frame_out(&f, latency(i), None);
+        }
+        single.set_source_counts(100, 0, 0);
+        chunks[0].set_source_counts(40, 0, 0);
+        chunks[1].set_source_counts(60, 0, 0);
+        // Through a file, as a chunk's take.json carries it.
+        let saved: Vec<MetricsCollector> = chunks
+            .iter()
+            .map(|c| serde_json::from_str(&serde_json::to_string(c).unwrap()).unwrap())
+            .collect();
+        // (JSON keeps the sums to the last bit or two: means compare to 1e-12.)
+        assert_eq!(saved[0].stages.keys().count(), chunks[0].stages.len());
+        let mut merged = saved[0].clone();
+        merged.merge(&saved[1]).unwrap();
+        let (a, b) = (single.snapshot(1.0), merged.snapshot(1.0));
+        assert_eq!(a.latency_ms.len(), 3);
+        for (stage, x) in &a.latency_ms {
+            let y = &b.latency_ms[stage];
+            assert_eq!(
+                (x.p50, x.p99, x.max, x.count),
+                (y.p50, y.p99, y.max, y.count)
+            );
+            assert!((x.mean - y.mean).abs() <= 1e-12 * x.mean, "{stage}");
+        }
+        assert_eq!(a.labeling, b.labeling);
+        assert_eq!(a.frames_in, b.frames_in);
+        assert_eq!(a.frame_range, b.frame_range);
+        assert_eq!(a.timecode, b.timecode);
+        // The jump sits at the chunk boundary: the merge counts it as the single pass does.
+        assert_eq!(a.warnings.timecode_jumps, 1);
+        assert_eq!(a.warnings, b.warnings);
+        // Out of order or overlapping chunks are refused.
+        let mut wrong = saved[1].clone();
+        assert!(wrong.merge(&saved[0]).is_err());
+    }
 
     #[test]
     fn histogram_quantiles_within_a_bin() {

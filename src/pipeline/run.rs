@@ -36,6 +36,10 @@ pub struct PipelineConfig {
     pub detect: DetectParams,
     /// Labeling.
     pub label: LabelParams,
+    /// Expressions labeling may find the face in when it starts from nothing: marker
+    /// positions (head frame, layout order) per expression, e.g. from
+    /// [`MarkerLayout::expression_templates`]. Default none (the neutral only).
+    pub expression_templates: Arc<Vec<Vec<Point3<f64>>>>,
     /// Head stabilization.
     pub stabilize: StabilizeParams,
     /// Dense reconstruction; None: bundles only.
@@ -57,8 +61,18 @@ pub struct PipelineConfig {
     /// and counted, so the pipeline does not work through a backlog of stale frames and
     /// its latency recovers within a frame. Replays ignore it (they never drop).
     pub live_entry_capacity: usize,
+    /// The solve stage forgets the previous frame's choices (LGI's temporal preference,
+    /// §5.1) on every frame whose index is a multiple of this; 0: never. Default 30.
+    ///
+    /// The preference makes each frame's solve depend on every frame before it, so a
+    /// chunk of a take started anywhere else than frame 0 could settle a near-tie
+    /// differently from a single pass. Forgetting at fixed frame numbers bounds that
+    /// memory: a chunk warmed up past such a frame solves exactly as the single pass
+    /// does. Half a second at 60 fps keeps the preference's purpose (no flicker between
+    /// near-equal candidates from frame to frame).
+    pub solve_keyframe_interval: usize,
     /// Gap-filled bundles: confidence halves every this many frames since the marker was
-    /// last observed. Default 15.
+    /// last observed, and is 0 after [`GAP_FILL_MEMORY_HALF_LIVES`] half-lives. Default 15.
     pub gap_fill_half_life_frames: f64,
     /// Name of the take (for sinks).
     pub name: String,
@@ -68,6 +82,11 @@ pub struct PipelineConfig {
     pub first_frame: usize,
     /// Frames the source will deliver, when known (for sinks and progress).
     pub frame_count: Option<usize>,
+    /// Frames before this index are warm-up: they go through every stage (the labeler,
+    /// the stabilizer's held pose and the solver's temporal preference learn from them)
+    /// but reach no sink and count in no metric but `warm_up_frames`. A chunk of a long
+    /// take uses it to start where a single pass would be. Default 0 (none).
+    pub write_from: usize,
 }
 
 impl PipelineConfig {
@@ -83,6 +102,7 @@ impl PipelineConfig {
             rig,
             detect: DetectParams::default(),
             label: LabelParams::default(),
+            expression_templates: Arc::new(Vec::new()),
             stabilize: StabilizeParams::default(),
             solver: None,
             enhancer: None,
@@ -91,14 +111,19 @@ impl PipelineConfig {
             ground_truth: None,
             channel_capacity: 4,
             live_entry_capacity: 1,
+            solve_keyframe_interval: 30,
             gap_fill_half_life_frames: 15.0,
             name: "take".into(),
             timecode_rate: None,
             first_frame: 0,
             frame_count: None,
+            write_from: 0,
         }
     }
 }
+
+/// Half-lives after which a gap-filled bundle's confidence drops to 0 (1/16 before).
+pub const GAP_FILL_MEMORY_HALF_LIVES: f64 = 4.0;
 
 /// Counters the source thread shares with the sink thread.
 #[derive(Debug, Default)]
@@ -175,6 +200,7 @@ pub fn run(
         rig,
         detect,
         label,
+        expression_templates,
         stabilize,
         solver,
         enhancer,
@@ -183,11 +209,13 @@ pub fn run(
         ground_truth,
         channel_capacity,
         live_entry_capacity,
+        solve_keyframe_interval,
         gap_fill_half_life_frames,
         name,
         timecode_rate,
         first_frame,
         frame_count,
+        write_from,
     } = config;
     let config_err = PipelineError::Config;
     detect
@@ -213,8 +241,12 @@ pub fn run(
             mesh.vertex_count()
         )));
     }
-    let labeler = Labeler::new(rig.clone(), &layout, neutral_markers_head.to_vec(), label)
+    let mut labeler = Labeler::new(rig.clone(), &layout, neutral_markers_head.to_vec(), label)
         .map_err(|e| config_err(e.to_string()))?;
+    let left_out = labeler.set_expression_templates(expression_templates.to_vec());
+    if left_out > 0 {
+        tracing::warn!("{left_out} expression templates do not fit the layout: left out");
+    }
     let stabilizer = Stabilizer::new(&layout, neutral_markers_head.to_vec(), stabilize)
         .map_err(|e| config_err(e.to_string()))?;
     if channel_capacity > crate::limits::MAX_QUEUE_FRAMES {
@@ -353,6 +385,11 @@ pub fn run(
                     for mut f in solve_in {
                         let t = Instant::now();
                         if let Some(s) = solver.as_mut() {
+                            if solve_keyframe_interval > 0
+                                && f.index.is_multiple_of(solve_keyframe_interval)
+                            {
+                                s.reset();
+                            }
                             solve_frame(
                                 &mut f,
                                 s,
@@ -432,6 +469,7 @@ pub fn run(
                     fps,
                     solves,
                     face_vertices.as_ref(),
+                    write_from,
                 );
                 drop(sinks_in);
                 r
@@ -639,9 +677,17 @@ fn solve_frame(
         {
             m.status = BundleStatus::GapFilled;
             m.point_in_head = Some(*p);
+            // Beyond GAP_FILL_MEMORY_HALF_LIVES half-lives a fill carries no confidence:
+            // the confidence then depends on a bounded stretch of the take, so a chunk
+            // warmed up that long writes the single pass's values.
             m.confidence = match seen {
-                Some(s) => 0.5f64.powf((f.index.saturating_sub(*s)) as f64 / half_life_frames),
-                None => 0.0,
+                Some(s)
+                    if (f.index.saturating_sub(*s)) as f64
+                        <= GAP_FILL_MEMORY_HALF_LIVES * half_life_frames =>
+                {
+                    0.5f64.powf((f.index.saturating_sub(*s)) as f64 / half_life_frames)
+                }
+                _ => 0.0,
             };
         }
     }
@@ -665,10 +711,16 @@ fn sink_stage(
     fps: f64,
     solves: bool,
     face_vertices: Option<&std::ops::RangeInclusive<u32>>,
+    write_from: usize,
 ) -> Result<Metrics, PipelineError> {
     let mut collector = MetricsCollector::new(marker_count, fps, solves);
     let mut failure: Option<PipelineError> = None;
+    let mut warm_up = 0u64;
     for mut f in input.iter() {
+        if f.index < write_from {
+            warm_up += 1;
+            continue;
+        }
         let t = Instant::now();
         for s in sinks.iter_mut() {
             if let Err(e) = s.write(&f) {
@@ -689,10 +741,14 @@ fn sink_stage(
         collector.frame_out(&f, ms_since(f.received_at), face_vertices);
     }
     collector.set_source_counts(
-        counters.frames_in.load(Ordering::SeqCst),
+        counters
+            .frames_in
+            .load(Ordering::SeqCst)
+            .saturating_sub(warm_up),
         counters.dropped.load(Ordering::SeqCst),
         counters.gaps.load(Ordering::SeqCst),
     );
+    collector.set_warm_up_frames(warm_up);
     // An upstream error is recorded before that stage's channel disconnects.
     let upstream = errors.lock().ok().and_then(|s| s.clone());
     if let Some(e) = upstream.as_ref().or(failure.as_ref()) {

@@ -351,6 +351,100 @@ impl Sink for C3dSink {
     }
 }
 
+/// A chunk's `bundles.c3d` to join: the file and the first and last frame it holds (the
+/// first and last frame its run wrote; the sink writes every frame between them).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct C3dPart {
+    /// The file.
+    pub path: PathBuf,
+    /// First frame index in it.
+    pub first_frame: usize,
+    /// Last frame index in it.
+    pub last_frame: usize,
+}
+
+/// Joins the `bundles.c3d` files of consecutive chunks of a take into one file at `out`:
+/// what one [`C3dSink`] over all their frames writes. The frame data are copied as they
+/// are, frames between two parts (source gaps) are written with every point invalid, and
+/// the header and parameters are made for the whole range, with `labels` (the layout's
+/// markers), `fps`, and the take's first timecode (frame index and timecode).
+///
+/// # Errors
+/// A part that is not a C3D file of `labels.len()` float points holding its frames, parts
+/// out of order, a file that cannot be read or written.
+pub fn join_c3d(
+    out: &Path,
+    parts: &[C3dPart],
+    labels: Vec<String>,
+    fps: f64,
+    first_timecode: Option<(usize, Timecode)>,
+) -> Result<(), SinkError> {
+    let mut sink = C3dSink::new(out);
+    sink.labels = labels;
+    sink.fps = fps;
+    let base = sink.header_and_params(0)?;
+    sink.param_blocks = base.len() / 512;
+    let mut data = StagedFile::create(out)?;
+    data.write_with(|w| w.write_all(&vec![0u8; 512 * (1 + sink.param_blocks)]))?;
+    sink.data = Some(data);
+    let frame_bytes = sink.labels.len() * 16;
+    for part in parts {
+        let bad = |m: String| SinkError::Other(format!("{}: {m}", part.path.display()));
+        let bytes = std::fs::read(&part.path).map_err(|e| SinkError::io(&part.path, e))?;
+        if bytes.len() < 512 || bytes[1] != 0x50 {
+            return Err(bad("not a C3D file".into()));
+        }
+        let word = |i: usize| u16::from_le_bytes([bytes[2 * i], bytes[2 * i + 1]]) as usize;
+        if word(1) != sink.labels.len() {
+            return Err(bad(format!(
+                "{} points per frame, the take has {} markers",
+                word(1),
+                sink.labels.len()
+            )));
+        }
+        let start = word(8).saturating_sub(1) * 512;
+        if part.last_frame < part.first_frame {
+            return Err(bad("holds no frame".into()));
+        }
+        let n = part.last_frame - part.first_frame + 1;
+        let end = start + n * frame_bytes;
+        if start < 512 || end > bytes.len() {
+            return Err(bad(format!(
+                "holds fewer than the {n} frames its run wrote (cut short?)"
+            )));
+        }
+        if sink.first_frame.is_none() {
+            sink.first_frame = Some(part.first_frame);
+            sink.next_frame = part.first_frame;
+        }
+        if part.first_frame < sink.next_frame {
+            return Err(bad(format!(
+                "starts at frame {}, before the end of the parts before it (frame {})",
+                part.first_frame,
+                sink.next_frame - 1
+            )));
+        }
+        let missing = (part.first_frame - sink.next_frame) as u64;
+        let gap = sink.invalid_frame();
+        let chunk = &bytes[start..end];
+        let data = sink
+            .data
+            .as_mut()
+            .ok_or_else(|| SinkError::Other("c3d join without a file".into()))?;
+        data.write_with(|w| {
+            for _ in 0..missing {
+                w.write_all(&gap)?;
+            }
+            w.write_all(chunk)
+        })?;
+        sink.data_len += missing * gap.len() as u64 + chunk.len() as u64;
+        sink.next_frame = part.last_frame + 1;
+    }
+    sink.first_timecode = first_timecode;
+    sink.pad_and_mark()?;
+    sink.finish(&Metrics::default())
+}
+
 impl C3dSink {
     /// Appends frame `f` (and empty frames for a gap before it) to the data.
     fn append(&mut self, f: &FrameResult) -> Result<(), SinkError> {

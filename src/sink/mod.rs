@@ -19,11 +19,11 @@ pub mod usd_read;
 pub mod usd_skel;
 
 pub use animation::{AnimationOutputs, AnimationSink, AnimationSummary, AnimationWriter};
-pub use c3d::C3dSink;
+pub use c3d::{C3dPart, C3dSink, join_c3d};
 pub use csv::{CsvSink, MetricsSink};
 pub use mesh::{MeshFormat, MeshSequenceSink};
 pub use rerun::{RerunParams, RerunSink, RerunSinkError, RerunTarget};
 pub use staged_file::StagedFile;
 pub use take_dir::{TakeDir, TakeDirError};
-pub use usd::UsdSink;
+pub use usd::{UsdSink, join_layers};
 pub use usd_read::{UsdMeshSequence, UsdReadError, read_usda_sequence};

@@ -332,63 +332,285 @@ impl UsdSink {
             (Some((a, _)), Some((b, _))) => (a, b),
             _ => (0, 0),
         };
-        let mut head = String::new();
-        let _ = writeln!(head, "#usda 1.0\n(");
-        let _ = writeln!(head, "    customLayerData = {{");
-        let _ = writeln!(
-            head,
-            "        string creator = \"helmcap {}\"",
-            env!("CARGO_PKG_VERSION")
-        );
-        let _ = writeln!(head, "        int frames = {}", self.frames);
-        if let (Some((_, Some(a))), Some((_, Some(b)))) = (self.first, self.last) {
-            let _ = writeln!(
-                head,
-                "        string timecodeRate = {}",
-                quoted(&a.rate.to_string())
-            );
-            let _ = writeln!(
-                head,
-                "        string timecodeStart = {}",
-                quoted(&a.to_string_with_rate())
-            );
-            let _ = writeln!(
-                head,
-                "        string timecodeEnd = {}",
-                quoted(&b.to_string_with_rate())
-            );
+        let timecodes = match (self.first, self.last) {
+            (Some((_, Some(a))), Some((_, Some(b)))) => Some([
+                a.rate.to_string(),
+                a.to_string_with_rate(),
+                b.to_string_with_rate(),
+            ]),
+            _ => None,
+        };
+        layer_metadata(
+            &LayerMeta {
+                frames: self.frames,
+                start,
+                end,
+                fps: self.fps,
+                timecodes,
+            },
+            stopped,
+        )
+        .map_err(|len| {
+            SinkError::Other(format!(
+                "{}: the layer metadata takes {len} bytes, {META_BYTES} are reserved",
+                self.path.display()
+            ))
+        })
+    }
+}
+
+/// What the layer metadata says.
+#[derive(Debug, Clone, PartialEq)]
+struct LayerMeta {
+    /// Frames with a mesh.
+    frames: usize,
+    /// First and last frame with a mesh (`startTimeCode`, `endTimeCode`).
+    start: usize,
+    end: usize,
+    /// Camera rate (`timeCodesPerSecond`, `framesPerSecond`).
+    fps: f64,
+    /// Timecode rate, first and last frame's timecode (with rate), when the take has them.
+    timecodes: Option<[String; 3]>,
+}
+
+/// The layer header and metadata padded with blanks to exactly [`META_BYTES`]; `Err` with
+/// the length needed when they do not fit.
+fn layer_metadata(meta: &LayerMeta, stopped: Option<&str>) -> Result<String, usize> {
+    let LayerMeta {
+        frames,
+        start,
+        end,
+        fps,
+        ..
+    } = *meta;
+    let mut head = String::new();
+    let _ = writeln!(head, "#usda 1.0\n(");
+    let _ = writeln!(head, "    customLayerData = {{");
+    let _ = writeln!(
+        head,
+        "        string creator = \"helmcap {}\"",
+        env!("CARGO_PKG_VERSION")
+    );
+    let _ = writeln!(head, "        int frames = {frames}");
+    if let Some([rate, first, last]) = &meta.timecodes {
+        let _ = writeln!(head, "        string timecodeRate = {}", quoted(rate));
+        let _ = writeln!(head, "        string timecodeStart = {}", quoted(first));
+        let _ = writeln!(head, "        string timecodeEnd = {}", quoted(last));
+    }
+    if let Some(reason) = stopped {
+        let short: String = reason
+            .chars()
+            .take(MAX_STOPPED_CHARS)
+            .map(|c| if c.is_control() { ' ' } else { c })
+            .collect();
+        let _ = writeln!(head, "        string stopped = {}", quoted(&short));
+    }
+    let _ = writeln!(head, "    }}");
+    let _ = writeln!(head, "    defaultPrim = \"Face\"");
+    let _ = writeln!(head, "    endTimeCode = {end}");
+    let _ = writeln!(head, "    metersPerUnit = 0.001");
+    let _ = writeln!(head, "    startTimeCode = {start}");
+    let _ = writeln!(head, "    timeCodesPerSecond = {}", f(fps));
+    let _ = writeln!(head, "    framesPerSecond = {}", f(fps));
+    let _ = writeln!(head, "    upAxis = \"Y\"");
+    let close = ")\n\n";
+    if head.len() + close.len() > META_BYTES {
+        return Err(head.len() + close.len());
+    }
+    // Blanks inside the metadata's parentheses are white space to USD.
+    let pad = META_BYTES - head.len() - close.len();
+    head.extend(std::iter::repeat_n(' ', pad.saturating_sub(1)));
+    if pad > 0 {
+        head.push('\n');
+    }
+    head.push_str(close);
+    Ok(head)
+}
+
+/// The line that opens the `points` samples (the end of [`mesh_body`]).
+const SAMPLES_OPEN: &str = "        point3f[] points.timeSamples = {\n";
+
+/// One chunk's layer, cut into its parts.
+struct LayerParts {
+    meta: LayerMeta,
+    /// From the end of the metadata room to the end of [`SAMPLES_OPEN`].
+    body: String,
+    /// The samples as written (`            N: [...]`, separated by `,\n`); empty when the
+    /// chunk has no mesh.
+    samples: String,
+    /// Frames of the samples, in order.
+    sample_frames: Vec<usize>,
+}
+
+/// Reads a layer [`UsdSink`] wrote.
+fn read_layer(path: &Path) -> Result<LayerParts, SinkError> {
+    let bad = |m: &str| SinkError::Other(format!("{}: {m}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(|e| SinkError::io(path, e))?;
+    if !text.starts_with("#usda 1.0")
+        || text.len() < META_BYTES
+        || !text.is_char_boundary(META_BYTES)
+    {
+        return Err(bad("not a mesh layer helmcap wrote"));
+    }
+    let (head, rest) = text.split_at(META_BYTES);
+    let open = rest
+        .find(SAMPLES_OPEN)
+        .ok_or_else(|| bad("no points.timeSamples"))?
+        + SAMPLES_OPEN.len();
+    let close = rest[open..]
+        .find(MESH_END)
+        .ok_or_else(|| bad("the points samples do not end"))?
+        + open;
+    let samples = rest[open..close].to_string();
+    let mut sample_frames = Vec::new();
+    for line in samples.split(",\n").filter(|l| !l.trim().is_empty()) {
+        let frame = line
+            .trim_start()
+            .split_once(':')
+            .and_then(|(n, _)| n.parse::<usize>().ok())
+            .ok_or_else(|| bad("a points sample without a frame number"))?;
+        sample_frames.push(frame);
+    }
+    let value = |key: &str| -> Option<&str> {
+        head.lines()
+            .map(str::trim)
+            .find_map(|l| l.strip_prefix(key)?.trim_start().strip_prefix('='))
+            .map(str::trim)
+    };
+    let number = |key: &str| -> Result<f64, SinkError> {
+        value(key)
+            .and_then(|v| v.parse::<f64>().ok())
+            .ok_or_else(|| bad(&format!("no {key} in the layer metadata")))
+    };
+    let string = |key: &str| value(key).map(|v| v.trim_matches('"').to_string());
+    if value("string stopped").is_some() {
+        return Err(bad("the run that wrote it stopped early"));
+    }
+    let timecodes = match (
+        string("string timecodeRate"),
+        string("string timecodeStart"),
+        string("string timecodeEnd"),
+    ) {
+        (Some(r), Some(a), Some(b)) => Some([r, a, b]),
+        _ => None,
+    };
+    Ok(LayerParts {
+        meta: LayerMeta {
+            frames: number("int frames")? as usize,
+            start: number("startTimeCode")? as usize,
+            end: number("endTimeCode")? as usize,
+            fps: number("timeCodesPerSecond")?,
+            timecodes,
+        },
+        body: rest[..open].to_string(),
+        samples,
+        sample_frames,
+    })
+}
+
+/// Joins the `mesh.usda` layers of consecutive chunks of a take (in frame order) into one
+/// layer at `out`, written atomically: what one [`UsdSink`] over all their frames writes.
+/// The mesh samples are copied as they are; the head-pose samples are made again from
+/// `head_poses` (each frame's `cam0_from_head`, from the take's `head_pose.csv`) relative to
+/// the first frame that has a mesh and a pose, as the sink does.
+///
+/// # Errors
+/// A layer that is not one helmcap wrote, layers of other meshes or rates, frames out of
+/// order, a file that cannot be read or written.
+pub fn join_layers(
+    out: &Path,
+    parts: &[PathBuf],
+    head_poses: &[(usize, Isometry3<f64>)],
+) -> Result<(), SinkError> {
+    let layers = parts
+        .iter()
+        .map(|p| read_layer(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let Some(first) = layers.first() else {
+        return Err(SinkError::Other("no layers to join".into()));
+    };
+    let mut samples = String::new();
+    let mut frames = 0;
+    let mut range: Option<(usize, usize)> = None;
+    let mut timecodes: (Option<String>, Option<String>) = (None, None);
+    let mut with_mesh = std::collections::BTreeSet::new();
+    for (layer, path) in layers.iter().zip(parts) {
+        let bad = |m: String| SinkError::Other(format!("{}: {m}", path.display()));
+        if layer.body != first.body {
+            return Err(bad(
+                "another mesh (topology, UVs or rest points) than the first layer's".into(),
+            ));
         }
-        if let Some(reason) = stopped {
-            let short: String = reason
-                .chars()
-                .take(MAX_STOPPED_CHARS)
-                .map(|c| if c.is_control() { ' ' } else { c })
-                .collect();
-            let _ = writeln!(head, "        string stopped = {}", quoted(&short));
-        }
-        let _ = writeln!(head, "    }}");
-        let _ = writeln!(head, "    defaultPrim = \"Face\"");
-        let _ = writeln!(head, "    endTimeCode = {end}");
-        let _ = writeln!(head, "    metersPerUnit = 0.001");
-        let _ = writeln!(head, "    startTimeCode = {start}");
-        let _ = writeln!(head, "    timeCodesPerSecond = {}", f(self.fps));
-        let _ = writeln!(head, "    framesPerSecond = {}", f(self.fps));
-        let _ = writeln!(head, "    upAxis = \"Y\"");
-        let close = ")\n\n";
-        if head.len() + close.len() > META_BYTES {
-            return Err(SinkError::Other(format!(
-                "{}: the layer metadata takes {} bytes, {META_BYTES} are reserved",
-                self.path.display(),
-                head.len()
+        if layer.meta.fps != first.meta.fps {
+            return Err(bad(format!(
+                "{} frames per second, the first layer has {}",
+                layer.meta.fps, first.meta.fps
             )));
         }
-        // Blanks inside the metadata's parentheses are white space to USD.
-        let pad = META_BYTES - head.len() - close.len();
-        head.extend(std::iter::repeat_n(' ', pad.saturating_sub(1)));
-        if pad > 0 {
-            head.push('\n');
+        let Some((&a, &b)) = layer.sample_frames.first().zip(layer.sample_frames.last()) else {
+            continue;
+        };
+        if let Some((_, end)) = range
+            && a <= end
+        {
+            return Err(bad(format!(
+                "frame {a} comes after frame {end} of the layers before"
+            )));
         }
-        head.push_str(close);
-        Ok(head)
+        range = Some((range.map_or(a, |r| r.0), b));
+        if !samples.is_empty() {
+            samples.push_str(",\n");
+        }
+        samples.push_str(&layer.samples);
+        frames += layer.meta.frames;
+        with_mesh.extend(layer.sample_frames.iter().copied());
+        if let Some([_, start, end]) = &layer.meta.timecodes {
+            timecodes.0.get_or_insert_with(|| start.clone());
+            timecodes.1 = Some(end.clone());
+        }
     }
+    let (start, end) = range.unwrap_or((0, 0));
+    let rate = first
+        .meta
+        .timecodes
+        .as_ref()
+        .or_else(|| layers.iter().find_map(|l| l.meta.timecodes.as_ref()))
+        .map(|t| t[0].clone());
+    let meta = LayerMeta {
+        frames,
+        start,
+        end,
+        fps: first.meta.fps,
+        timecodes: match (rate, timecodes.0, timecodes.1) {
+            (Some(r), Some(a), Some(b)) => Some([r, a, b]),
+            _ => None,
+        },
+    };
+    let head = layer_metadata(&meta, None).map_err(|len| {
+        SinkError::Other(format!(
+            "{}: the layer metadata takes {len} bytes, {META_BYTES} are reserved",
+            out.display()
+        ))
+    })?;
+    let mut origin: Option<Isometry3<f64>> = None;
+    let poses: Vec<(usize, Isometry3<f64>)> = head_poses
+        .iter()
+        .filter(|(frame, _)| with_mesh.contains(frame))
+        .map(|(frame, pose)| {
+            let o = *origin.get_or_insert_with(|| pose.inverse());
+            (*frame, o * pose)
+        })
+        .collect();
+    let end = if poses.is_empty() {
+        TAIL.to_string()
+    } else {
+        head_pose_tail(&poses)
+    };
+    crate::atomic_file::write_atomically(out, |w| {
+        w.write_all(head.as_bytes())?;
+        w.write_all(first.body.as_bytes())?;
+        w.write_all(samples.as_bytes())?;
+        w.write_all(end.as_bytes())
+    })
+    .map_err(|e| SinkError::io(out, e))
 }
