@@ -43,30 +43,15 @@ use nalgebra::Point3;
 
 use crate::atomic_file::write_atomically;
 use crate::dataset::MarkerLayout;
+use crate::file_error::FileError;
 use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 
 /// Errors from reading or writing a bundles CSV.
 #[derive(Debug, thiserror::Error)]
 pub enum BundlesError {
-    /// The file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file involved.
-        path: String,
-        /// The underlying error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A line is malformed, or a marker appears twice in a frame.
-    #[error("{path}:{line}: {message}")]
-    Parse {
-        /// The file involved.
-        path: String,
-        /// 1-based line number.
-        line: usize,
-        /// What was wrong, and how to fix it.
-        message: String,
-    },
+    /// The file could not be read or written, or a line of it is malformed.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The file as a whole does not fit the layout (no known marker at all, or a frame
     /// whose marker count differs from the layout when writing).
     #[error("{path}: {message}")]
@@ -146,9 +131,11 @@ impl LabelMap {
     /// without two names, a label mapped twice.
     pub fn read_csv(path: &Path) -> Result<Self, BundlesError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| BundlesError::Io {
-            path: name.clone(),
-            source,
+        let text = std::fs::read_to_string(path).map_err(|source| {
+            BundlesError::File(FileError::Io {
+                path: name.clone(),
+                source,
+            })
         })?;
         Self::parse_csv(&text, &name)
     }
@@ -163,12 +150,13 @@ impl LabelMap {
             what: "label",
             extra_columns: true,
         };
-        let rows =
-            parse_name_pairs(text, &format).map_err(|(line, message)| BundlesError::Parse {
+        let rows = parse_name_pairs(text, &format).map_err(|(line, message)| {
+            BundlesError::File(FileError::Parse {
                 path: name.to_string(),
                 line,
                 message,
-            })?;
+            })
+        })?;
         Ok(Self::new(rows))
     }
 }
@@ -206,9 +194,11 @@ pub fn read_bundles_with(
     label_map: Option<&LabelMap>,
 ) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| BundlesError::Io {
-        path: name.clone(),
-        source,
+    let bytes = std::fs::read(path).map_err(|source| {
+        BundlesError::File(FileError::Io {
+            path: name.clone(),
+            source,
+        })
     })?;
     if c3d::is_c3d(&bytes) {
         return c3d::parse_c3d(&bytes, &name, layout, label_map);
@@ -244,10 +234,12 @@ pub fn parse_bundles_with(
     layout: &MarkerLayout,
     label_map: Option<&LabelMap>,
 ) -> Result<(Vec<FrameBundles>, ReadReport), BundlesError> {
-    let err = |line: usize, message: String| BundlesError::Parse {
-        path: name.to_string(),
-        line,
-        message,
+    let err = |line: usize, message: String| {
+        BundlesError::File(FileError::Parse {
+            path: name.to_string(),
+            line,
+            message,
+        })
     };
     let mut lines = text
         .lines()
@@ -383,7 +375,7 @@ pub fn parse_bundles_with(
 ///
 /// # Errors
 /// [`BundlesError::Mismatch`] when a frame's marker count differs from the layout's;
-/// [`BundlesError::Io`] when the file cannot be written.
+/// [`FileError::Io`] when the file cannot be written.
 pub fn write_bundles(
     path: &Path,
     layout: &MarkerLayout,
@@ -411,9 +403,11 @@ pub fn write_bundles(
         }
         Ok(())
     })
-    .map_err(|source| BundlesError::Io {
-        path: path.display().to_string(),
-        source,
+    .map_err(|source| {
+        BundlesError::File(FileError::Io {
+            path: path.display().to_string(),
+            source,
+        })
     })
 }
 

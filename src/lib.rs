@@ -1,6 +1,9 @@
 //! helmcap: facial performance capture from helmet-mounted stereo cameras.
 //!
 //! Layers, bottom up (a module may use only those above it in this list):
+//! - [`file_error`], [`param_error`], [`limits`], [`atomic_file`]: the one error of a file
+//!   and its line, the one error of a parameter out of range,
+//!   the stated size limits of every input, atomic writes.
 //! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics); the
 //!   two-column name files (label and name maps) are read by one private parser.
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
@@ -36,11 +39,13 @@ pub mod capture;
 pub mod dataset;
 pub mod enhance;
 pub mod farm;
+pub mod file_error;
 pub mod lgi;
 pub mod limits;
 pub mod mesh;
 mod name_pairs;
 pub mod numeric;
+pub mod param_error;
 pub mod pipeline;
 pub mod report;
 pub mod rig;

@@ -17,6 +17,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
 use super::horn::{HornError, horn_alignment};
+use crate::param_error::ParamError;
 
 /// Robust loss of [`robust_horn`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -69,16 +70,16 @@ impl RobustHornParams {
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ParamError`] naming the field.
+    pub fn validate(&self) -> Result<(), ParamError> {
         if !(self.min_sigma_mm.is_finite() && self.min_sigma_mm > 0.0) {
-            return Err("min_sigma_mm must be positive".into());
+            return Err(ParamError::new("min_sigma_mm", "must be positive"));
         }
         if self.max_iterations == 0 {
-            return Err("max_iterations must be at least 1".into());
+            return Err(ParamError::new("max_iterations", "must be at least 1"));
         }
         if !(self.tolerance_mm.is_finite() && self.tolerance_mm >= 0.0) {
-            return Err("tolerance_mm must be non-negative".into());
+            return Err(ParamError::new("tolerance_mm", "must be non-negative"));
         }
         Ok(())
     }

@@ -21,6 +21,7 @@ use nalgebra::{Isometry3, Point3};
 
 use super::robust::{RobustHornParams, robust_horn};
 use crate::dataset::MarkerLayout;
+use crate::param_error::ParamError;
 
 /// Stabilization settings.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -60,17 +61,17 @@ impl StabilizeParams {
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the field.
-    pub fn validate(&self) -> Result<(), String> {
-        self.horn.validate().map_err(|e| format!("horn.{e}"))?;
+    /// [`ParamError`] naming the field.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        self.horn.validate().map_err(|e| e.within("horn"))?;
         if self.min_markers < 3 {
-            return Err("min_markers must be at least 3".into());
+            return Err(ParamError::new("min_markers", "must be at least 3"));
         }
         if self.max_inlier_rms_mm.is_nan() || self.max_inlier_rms_mm <= 0.0 {
-            return Err("max_inlier_rms_mm must be positive".into());
+            return Err(ParamError::new("max_inlier_rms_mm", "must be positive"));
         }
         if self.max_displacement_mm.is_nan() || self.max_displacement_mm <= 0.0 {
-            return Err("max_displacement_mm must be positive".into());
+            return Err(ParamError::new("max_displacement_mm", "must be positive"));
         }
         Ok(())
     }
@@ -84,7 +85,7 @@ pub enum StabilizeError {
     Layout(String),
     /// A parameter is out of range.
     #[error("stabilization parameters: {0}")]
-    Params(String),
+    Params(ParamError),
 }
 
 /// Where a frame's head pose came from.

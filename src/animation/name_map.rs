@@ -1,6 +1,7 @@
 //! Name maps: a rig's shape names mapped to a target convention (CSV `shape,target`),
 //! and Apple's 52 ARKit blendshape names.
 
+use crate::file_error::FileError;
 use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -71,25 +72,9 @@ const ICT_ARKIT: &str = include_str!("../../configs/namemaps/ict-arkit.csv");
 /// Errors reading a name map.
 #[derive(Debug, thiserror::Error)]
 pub enum NameMapError {
-    /// The file could not be read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: String,
-        /// The system's error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A line is malformed.
-    #[error("{path}:{line}: {message}")]
-    Parse {
-        /// The file.
-        path: String,
-        /// 1-based line.
-        line: usize,
-        /// What is wrong.
-        message: String,
-    },
+    /// The file could not be read or written, or a line of it is malformed.
+    #[error(transparent)]
+    File(#[from] FileError),
 }
 
 /// A map from a rig's shape names to target names (CSV `shape,target`).
@@ -170,9 +155,11 @@ impl NameMap {
     /// without two names, a shape listed twice.
     pub fn read_csv(path: &Path) -> Result<Self, NameMapError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| NameMapError::Io {
-            path: name.clone(),
-            source,
+        let text = std::fs::read_to_string(path).map_err(|source| {
+            NameMapError::File(FileError::Io {
+                path: name.clone(),
+                source,
+            })
         })?;
         Self::parse_csv(&text, &name)
     }
@@ -187,12 +174,13 @@ impl NameMap {
             what: "shape",
             extra_columns: false,
         };
-        let rows =
-            parse_name_pairs(text, &format).map_err(|(line, message)| NameMapError::Parse {
+        let rows = parse_name_pairs(text, &format).map_err(|(line, message)| {
+            NameMapError::File(FileError::Parse {
                 path: name.to_string(),
                 line,
                 message,
-            })?;
+            })
+        })?;
         Ok(Self { rows })
     }
 

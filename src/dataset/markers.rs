@@ -13,31 +13,16 @@ use nalgebra::{Point3, Vector3};
 
 use super::Dataset;
 use crate::atomic_file::write_atomically;
+use crate::file_error::FileError;
 use crate::mesh::{Topology, vertex_normals};
 use crate::mesh::{edge_graph_distances, update_edge_graph_distances};
 
 /// Errors from reading, writing or generating a marker layout.
 #[derive(Debug, thiserror::Error)]
 pub enum MarkerError {
-    /// The file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file involved.
-        path: String,
-        /// The underlying error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A line of the CSV is malformed.
-    #[error("{path}:{line}: {message}")]
-    Parse {
-        /// The file involved.
-        path: String,
-        /// 1-based line number.
-        line: usize,
-        /// What was wrong.
-        message: String,
-    },
+    /// The file could not be read or written, or a line of it is malformed.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The layout does not fit the dataset, or generation is impossible.
     #[error("{0}")]
     Invalid(String),
@@ -92,9 +77,11 @@ impl MarkerLayout {
     /// wrong number of fields, a vertex that is not a non-negative integer, a weight outside
     /// 0..1 or not a number, a duplicate name or vertex, an empty layout.
     pub fn read_csv(path: &Path) -> Result<Self, MarkerError> {
-        let text = std::fs::read_to_string(path).map_err(|source| MarkerError::Io {
-            path: path.display().to_string(),
-            source,
+        let text = std::fs::read_to_string(path).map_err(|source| {
+            MarkerError::File(FileError::Io {
+                path: path.display().to_string(),
+                source,
+            })
         })?;
         Self::parse_csv(&text, &path.display().to_string())
     }
@@ -104,10 +91,12 @@ impl MarkerLayout {
     /// # Errors
     /// As [`MarkerLayout::read_csv`].
     pub fn parse_csv(text: &str, name: &str) -> Result<Self, MarkerError> {
-        let err = |line: usize, message: String| MarkerError::Parse {
-            path: name.to_string(),
-            line,
-            message,
+        let err = |line: usize, message: String| {
+            MarkerError::File(FileError::Parse {
+                path: name.to_string(),
+                line,
+                message,
+            })
         };
         let mut lines = text
             .lines()
@@ -194,7 +183,7 @@ impl MarkerLayout {
     /// Writes the layout CSV atomically.
     ///
     /// # Errors
-    /// [`MarkerError::Io`] when the file cannot be written.
+    /// [`FileError::Io`] when the file cannot be written.
     pub fn write_csv(&self, path: &Path) -> Result<(), MarkerError> {
         write_atomically(path, |w| {
             writeln!(w, "name,vertex,stabilize_weight")?;
@@ -203,9 +192,11 @@ impl MarkerLayout {
             }
             Ok(())
         })
-        .map_err(|source| MarkerError::Io {
-            path: path.display().to_string(),
-            source,
+        .map_err(|source| {
+            MarkerError::File(FileError::Io {
+                path: path.display().to_string(),
+                source,
+            })
         })
     }
 

@@ -21,6 +21,8 @@ pub mod topology;
 
 use nalgebra::{Point2, Point3};
 
+use crate::file_error::FileError;
+
 pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
 pub use geometry::{
     triangle_areas, triangle_areas_of, triangle_normals, vertex_areas, vertex_normals,
@@ -43,25 +45,9 @@ pub use topology::{Topology, boundary_loops, edges, vertex_adjacency};
 /// Every variant says what was wrong and where (file and line when known).
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
-    /// The file could not be opened, read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file involved.
-        path: String,
-        /// The underlying I/O error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// A line of a text mesh file could not be parsed.
-    #[error("{path}:{line}: {message}")]
-    Parse {
-        /// The file involved.
-        path: String,
-        /// 1-based line number.
-        line: usize,
-        /// What was wrong with the line.
-        message: String,
-    },
+    /// The file could not be read or written, or a line of it is malformed.
+    #[error(transparent)]
+    File(#[from] FileError),
     /// The file holds no vertices or no faces.
     #[error("{path}: {message}")]
     Empty {

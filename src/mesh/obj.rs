@@ -46,20 +46,23 @@ use std::path::Path;
 use nalgebra::{Point2, Point3};
 
 use super::{Mesh, MeshError};
+use crate::file_error::FileError;
 
 /// Reads an OBJ file into a [`Mesh`] (see the [module docs](self) for what is kept).
 ///
 /// # Errors
-/// - [`MeshError::Io`] when the file cannot be read (the message names the path).
-/// - [`MeshError::Parse`] (path and 1-based line) for a malformed `v`/`vt`/`vn`/`f` line,
+/// - [`FileError::Io`] when the file cannot be read (the message names the path).
+/// - [`FileError::Parse`] (path and 1-based line) for a malformed `v`/`vt`/`vn`/`f` line,
 ///   a non-finite coordinate, a face index of zero or out of range, a face with fewer
 ///   than 3 corners or a repeated vertex, or faces that disagree on having UVs.
 /// - [`MeshError::Empty`] when the file is empty or has no vertices or no faces.
 pub fn read_obj(path: &Path) -> Result<Mesh, MeshError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: name.clone(),
-        source,
+    let bytes = std::fs::read(path).map_err(|source| {
+        MeshError::File(FileError::Io {
+            path: name.clone(),
+            source,
+        })
     })?;
     ObjParser::new(&name).parse(&bytes)
 }
@@ -79,14 +82,16 @@ pub fn read_obj_str(text: &str, name: &str) -> Result<Mesh, MeshError> {
 /// the neutral's topology through [`Mesh::with_positions`], which checks the count.
 ///
 /// # Errors
-/// [`MeshError::Io`] when the file cannot be read, [`MeshError::Parse`] (path and line)
+/// [`FileError::Io`] when the file cannot be read, [`FileError::Parse`] (path and line)
 /// for a malformed `v` line or a non-finite coordinate, [`MeshError::Empty`] when the
 /// file has no `v` line.
 pub fn read_obj_positions(path: &Path) -> Result<Vec<Point3<f64>>, MeshError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: name.clone(),
-        source,
+    let bytes = std::fs::read(path).map_err(|source| {
+        MeshError::File(FileError::Io {
+            path: name.clone(),
+            source,
+        })
     })?;
     parse_positions(&bytes, &name)
 }
@@ -94,7 +99,7 @@ pub fn read_obj_positions(path: &Path) -> Result<Vec<Point3<f64>>, MeshError> {
 /// Writes `mesh` to an OBJ file, atomically (see the [module docs](self)).
 ///
 /// # Errors
-/// [`MeshError::Io`] (naming `path`) when the file cannot be written;
+/// [`FileError::Io`] (naming `path`) when the file cannot be written;
 /// [`MeshError::Invalid`] as [`write_obj_to`].
 pub fn write_obj(path: &Path, mesh: &Mesh) -> Result<(), MeshError> {
     write_obj_positions(path, mesh, &mesh.positions)
@@ -105,7 +110,7 @@ pub fn write_obj(path: &Path, mesh: &Mesh) -> Result<(), MeshError> {
 ///
 /// # Errors
 /// [`MeshError::Invalid`] when `positions.len()` differs from the mesh's vertex count or
-/// a coordinate is not finite (checked before the file is created); [`MeshError::Io`]
+/// a coordinate is not finite (checked before the file is created); [`FileError::Io`]
 /// when the file cannot be written.
 pub fn write_obj_positions(
     path: &Path,
@@ -122,16 +127,18 @@ pub fn write_obj_positions(
 /// # Errors
 /// [`MeshError::Invalid`] when `positions.len()` differs from the mesh's vertex count, a
 /// coordinate is not finite, or a material name contains a line break (checked before
-/// anything is written); [`MeshError::Io`] (path `<writer>`) when the writer fails.
+/// anything is written); [`FileError::Io`] (path `<writer>`) when the writer fails.
 pub fn write_obj_to<W: Write>(
     mut w: W,
     mesh: &Mesh,
     positions: &[Point3<f64>],
 ) -> Result<(), MeshError> {
     check_writable(mesh, positions)?;
-    write_body(&mut w, mesh, positions).map_err(|source| MeshError::Io {
-        path: "<writer>".into(),
-        source,
+    write_body(&mut w, mesh, positions).map_err(|source| {
+        MeshError::File(FileError::Io {
+            path: "<writer>".into(),
+            source,
+        })
     })
 }
 
@@ -251,14 +258,16 @@ fn push_f64(out: &mut Vec<u8>, buf: &mut ryu::Buffer, x: f64) {
 /// Writes a file atomically (see [`crate::atomic_file::write_atomically`]).
 ///
 /// # Errors
-/// [`MeshError::Io`] naming `path`.
+/// [`FileError::Io`] naming `path`.
 pub(crate) fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
 ) -> Result<(), MeshError> {
-    crate::atomic_file::write_atomically(path, write).map_err(|source| MeshError::Io {
-        path: path.display().to_string(),
-        source,
+    crate::atomic_file::write_atomically(path, write).map_err(|source| {
+        MeshError::File(FileError::Io {
+            path: path.display().to_string(),
+            source,
+        })
     })
 }
 
@@ -368,10 +377,12 @@ fn parse_positions(bytes: &[u8], name: &str) -> Result<Vec<Point3<f64>>, MeshErr
             continue;
         }
         let mut toks = tokens(strip_comment(line)).skip(1);
-        let p = parse_vertex(&mut toks).map_err(|message| MeshError::Parse {
-            path: name.to_string(),
-            line: line_no,
-            message,
+        let p = parse_vertex(&mut toks).map_err(|message| {
+            MeshError::File(FileError::Parse {
+                path: name.to_string(),
+                line: line_no,
+                message,
+            })
         })?;
         positions.push(p);
     }
@@ -459,11 +470,11 @@ impl<'a> ObjParser<'a> {
     }
 
     fn error(&self, line: usize, message: impl Into<String>) -> MeshError {
-        MeshError::Parse {
+        MeshError::File(FileError::Parse {
             path: self.name.to_string(),
             line,
             message: message.into(),
-        }
+        })
     }
 
     fn empty(&self, message: &str) -> MeshError {
@@ -826,7 +837,7 @@ mod tests {
     /// Asserts a parse error at `line` whose message contains `needle`.
     fn assert_parse_error(text: &str, line: usize, needle: &str) {
         match parse(text) {
-            Err(e @ MeshError::Parse { line: l, .. }) => {
+            Err(e @ MeshError::File(FileError::Parse { line: l, .. })) => {
                 let msg = e.to_string();
                 assert_eq!(l, line, "wrong line in `{msg}`");
                 assert!(msg.starts_with(&format!("test.obj:{line}: ")), "{msg}");
@@ -950,7 +961,7 @@ mod tests {
             read_obj_positions(&path).map(|_| ()),
         ] {
             match result {
-                Err(e @ MeshError::Io { .. }) => {
+                Err(e @ MeshError::File(FileError::Io { .. })) => {
                     assert!(e.to_string().contains("absent.obj"), "{e}");
                 }
                 other => panic!("expected an I/O error, got {other:?}"),
@@ -1090,7 +1101,9 @@ mod tests {
 
         std::fs::write(&path, "v 1 2 3\nv 1 nan 3\n").unwrap();
         match read_obj_positions(&path) {
-            Err(e @ MeshError::Parse { line: 2, .. }) => assert!(e.to_string().contains(":2: ")),
+            Err(e @ MeshError::File(FileError::Parse { line: 2, .. })) => {
+                assert!(e.to_string().contains(":2: "))
+            }
             other => panic!("expected a parse error at line 2, got {other:?}"),
         }
         std::fs::write(&path, "vt 0 0\n").unwrap();
@@ -1103,12 +1116,12 @@ mod tests {
             std::fs::write(&path, text).unwrap();
             let err = read_obj_positions(&path).unwrap_err();
             assert!(
-                matches!(err, MeshError::Parse { line: 2, .. }),
+                matches!(err, MeshError::File(FileError::Parse { line: 2, .. })),
                 "{text:?}: {err}"
             );
             let err = read_obj_str(text, "s").unwrap_err();
             assert!(
-                matches!(err, MeshError::Parse { line: 2, .. }),
+                matches!(err, MeshError::File(FileError::Parse { line: 2, .. })),
                 "{text:?}: {err}"
             );
         }
@@ -1212,7 +1225,10 @@ mod tests {
 
         let missing_dir = dir.path().join("no/such/dir/g.obj");
         let err = write_obj(&missing_dir, &m).unwrap_err();
-        assert!(matches!(err, MeshError::Io { .. }) && err.to_string().contains("g.obj"));
+        assert!(
+            matches!(err, MeshError::File(FileError::Io { .. }))
+                && err.to_string().contains("g.obj")
+        );
     }
 
     fn ict_dir() -> std::path::PathBuf {

@@ -19,6 +19,7 @@ use nalgebra::Point3;
 
 use super::obj::{check_positions, write_atomically};
 use super::{Mesh, MeshError};
+use crate::file_error::FileError;
 
 /// Writes `mesh` as a binary little-endian PLY 1.0 file, atomically (temporary file in
 /// the same directory, then rename).
@@ -40,7 +41,7 @@ use super::{Mesh, MeshError};
 /// # Errors
 /// [`MeshError::Invalid`] (before the file is created) when `positions` has the wrong
 /// length, a coordinate is not finite or too large for `f32`, or the mesh has more than
-/// `i32::MAX` vertices; [`MeshError::Io`] (naming `path`) when the file cannot be written.
+/// `i32::MAX` vertices; [`FileError::Io`] (naming `path`) when the file cannot be written.
 pub fn write_ply(
     path: &Path,
     mesh: &Mesh,
@@ -266,14 +267,16 @@ impl PlyElement {
 /// Units are the file's (PLY declares none).
 ///
 /// # Errors
-/// [`MeshError::Io`] when the file cannot be read, [`MeshError::Parse`] (line 0 for the
+/// [`FileError::Io`] when the file cannot be read, [`FileError::Parse`] (line 0 for the
 /// binary body) for a malformed header or body, [`MeshError::Empty`] without vertices or
 /// faces, [`MeshError::Invalid`] for a bad index.
 pub fn read_ply(path: &Path) -> Result<Mesh, MeshError> {
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Io {
-        path: name.clone(),
-        source,
+    let bytes = std::fs::read(path).map_err(|source| {
+        MeshError::File(FileError::Io {
+            path: name.clone(),
+            source,
+        })
     })?;
     read_ply_bytes(&bytes, &name)
 }
@@ -283,10 +286,12 @@ pub fn read_ply(path: &Path) -> Result<Mesh, MeshError> {
 /// # Errors
 /// As [`read_ply`].
 pub fn read_ply_bytes(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
-    let parse = |line: usize, message: String| MeshError::Parse {
-        path: name.to_string(),
-        line,
-        message,
+    let parse = |line: usize, message: String| {
+        MeshError::File(FileError::Parse {
+            path: name.to_string(),
+            line,
+            message,
+        })
     };
     let end = b"end_header";
     let header_end = bytes
@@ -691,7 +696,10 @@ mod tests {
         write_ply(&path, &disc, None).unwrap();
         assert_eq!(read_back(&path).faces.len(), 254);
         let err = write_ply(&dir.path().join("missing/bad.ply"), &mesh, None).unwrap_err();
-        assert!(matches!(err, MeshError::Io { .. }), "{err}");
+        assert!(
+            matches!(err, MeshError::File(FileError::Io { .. })),
+            "{err}"
+        );
     }
 
     /// Reproducers of the hardening issue: headers that declare huge element counts are

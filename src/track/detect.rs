@@ -20,6 +20,7 @@
 use nalgebra::Point2;
 
 use crate::capture::GrayImage;
+use crate::param_error::{self, ParamError};
 
 /// Detection settings.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -144,38 +145,37 @@ impl DetectParams {
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ParamError`] naming the field.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let err = ParamError::new;
         if self.window_radius_px == 0 || self.window_radius_px > 100 {
-            return Err("window_radius_px must be in 1..=100".into());
+            return Err(err("window_radius_px", "must be in 1..=100"));
         }
         if self.min_contrast_dn == 0 || self.min_contrast_dn > 255 {
-            return Err("min_contrast_dn must be in 1..=255".into());
+            return Err(err("min_contrast_dn", "must be in 1..=255"));
         }
         if self.min_area_px == 0 || self.min_area_px > self.max_area_px {
-            return Err("need 0 < min_area_px <= max_area_px".into());
+            return Err(err(
+                "min_area_px",
+                "must be positive and at most max_area_px",
+            ));
         }
         if !(0.0..=1.0).contains(&self.min_roundness) {
-            return Err("min_roundness must be in [0, 1]".into());
+            return Err(err("min_roundness", "must be in [0, 1]"));
         }
         if !(0.0..=1.0).contains(&self.elongated_min_roundness) {
-            return Err("elongated_min_roundness must be in [0, 1]".into());
+            return Err(err("elongated_min_roundness", "must be in [0, 1]"));
         }
-        if !(self.elongated_max_length_px.is_finite() && self.elongated_max_length_px > 0.0) {
-            return Err("elongated_max_length_px must be positive".into());
-        }
-        if !(self.elongated_min_width_px.is_finite() && self.elongated_min_width_px >= 0.0) {
-            return Err("elongated_min_width_px must be non-negative".into());
-        }
-        if !(self.elongated_min_contrast_factor.is_finite()
-            && self.elongated_min_contrast_factor >= 0.0)
-        {
-            return Err("elongated_min_contrast_factor must be non-negative".into());
-        }
+        param_error::positive(self.elongated_max_length_px, "elongated_max_length_px")?;
+        param_error::non_negative(self.elongated_min_width_px, "elongated_min_width_px")?;
+        param_error::non_negative(
+            self.elongated_min_contrast_factor,
+            "elongated_min_contrast_factor",
+        )?;
         if !(self.min_dot_px.is_finite() && self.min_dot_px >= 0.0) {
-            return Err(format!(
-                "min_dot_px = {} must be non-negative",
-                self.min_dot_px
+            return Err(ParamError::new(
+                "min_dot_px",
+                format!("= {} must be non-negative", self.min_dot_px),
             ));
         }
         if !(self.max_dot_px.is_finite()
@@ -183,15 +183,15 @@ impl DetectParams {
             && self.max_dot_px <= 400.0
             && self.max_dot_px >= self.min_dot_px)
         {
-            return Err(format!(
-                "max_dot_px = {} must be in [max(1, min_dot_px), 400]",
-                self.max_dot_px
+            return Err(ParamError::new(
+                "max_dot_px",
+                format!("= {} must be in [max(1, min_dot_px), 400]", self.max_dot_px),
             ));
         }
         if let Some((x0, y0, x1, y1)) = self.roi
             && (x0 >= x1 || y0 >= y1)
         {
-            return Err("roi must have x0 < x1 and y0 < y1".into());
+            return Err(err("roi", "must have x0 < x1 and y0 < y1"));
         }
         Ok(())
     }

@@ -13,6 +13,8 @@
 //! (and covers the start, before any residual is known); residuals cut off by a gate
 //! below the truth bias the median low only until the next update widens it.
 
+use crate::param_error::ParamError;
+
 /// Settings of the adaptive epipolar gate.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
@@ -50,19 +52,22 @@ impl EpipolarGateParams {
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the field.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ParamError`] naming the field (relative to `epipolar_gate`).
+    pub fn validate(&self) -> Result<(), ParamError> {
         if !(self.sigma_factor.is_finite() && self.sigma_factor > 0.0) {
-            return Err("epipolar_gate.sigma_factor must be positive".into());
+            return Err(ParamError::new("sigma_factor", "must be positive"));
         }
         if !(self.floor_px.is_finite() && self.floor_px > 0.0) {
-            return Err("epipolar_gate.floor_px must be positive".into());
+            return Err(ParamError::new("floor_px", "must be positive"));
         }
         if !(self.ceiling_px.is_finite() && self.ceiling_px >= self.floor_px) {
-            return Err("epipolar_gate.ceiling_px must be at least floor_px".into());
+            return Err(ParamError::new("ceiling_px", "must be at least floor_px"));
         }
         if self.window == 0 || self.min_samples == 0 || self.min_samples > self.window {
-            return Err("epipolar_gate: need 0 < min_samples <= window".into());
+            return Err(ParamError::new(
+                "min_samples",
+                "must be positive and at most window",
+            ));
         }
         Ok(())
     }
@@ -221,7 +226,7 @@ mod tests {
             ceiling_px: 0.1,
             ..Default::default()
         };
-        assert!(bad.validate().unwrap_err().contains("ceiling_px"));
+        assert_eq!(bad.validate().unwrap_err().key, "ceiling_px");
         let bad = EpipolarGateParams {
             min_samples: 0,
             ..Default::default()

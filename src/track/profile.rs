@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 
 use crate::camera::StereoRig;
 use crate::capture::GrayConversion;
+use crate::param_error::ParamError;
 
 use super::{DetectParams, LabelParams};
 
@@ -172,42 +173,44 @@ impl CaptureProfile {
                 "[detect] bright: set `polarity = \"bright\"` at the top level instead".into(),
             ));
         }
-        profile.validate().map_err(invalid)?;
+        profile.validate().map_err(|e| invalid(e.to_string()))?;
         Ok(profile)
     }
 
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the key.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ParamError`] naming the key (`detect.…` and `label.…` for the sections).
+    pub fn validate(&self) -> Result<(), ParamError> {
         if !(self.dot_diameter_mm.is_finite()
             && self.dot_diameter_mm > 0.0
             && self.dot_diameter_mm <= 50.0)
         {
-            return Err(format!(
-                "dot_diameter_mm = {} must be a number in (0, 50]",
-                self.dot_diameter_mm
+            return Err(ParamError::new(
+                "dot_diameter_mm",
+                format!("= {} must be a number in (0, 50]", self.dot_diameter_mm),
             ));
         }
         let (near, far) = self.camera_distance_mm;
         if !(near.is_finite() && far.is_finite() && near > 0.0 && near < far && far <= 10_000.0) {
-            return Err(format!(
-                "camera_distance_mm = [{near}, {far}] must be 0 < near < far <= 10000"
+            return Err(ParamError::new(
+                "camera_distance_mm",
+                format!("= [{near}, {far}] must be 0 < near < far <= 10000"),
             ));
         }
         if let Some(c) = self.color
             && !c.iter().all(|v| v.is_finite() && (0.0..=255.0).contains(v))
         {
-            return Err("color must be three levels in 0..=255".into());
+            return Err(ParamError::new("color", "must be three levels in 0..=255"));
         }
         if self.color.is_some() && self.channel.is_some() {
-            return Err("set either color or channel, not both".into());
+            return Err(ParamError::new(
+                "color",
+                "and channel cannot both be set: set one",
+            ));
         }
-        self.detect
-            .validate()
-            .map_err(|e| format!("[detect] {e}"))?;
-        self.label.validate().map_err(|e| format!("[label] {e}"))?;
+        self.detect.validate().map_err(|e| e.within("detect"))?;
+        self.label.validate().map_err(|e| e.within("label"))?;
         Ok(())
     }
 
@@ -316,8 +319,8 @@ mod tests {
             ("dot_diameter_mm = nan", "dot_diameter_mm"),
             ("polarity = \"grey\"", "grey"),
             ("camera_distance_mm = [300, 100]", "camera_distance_mm"),
-            ("[detect]\nmin_area_px = 0", "min_area_px"),
-            ("[label]\ngate_px = -1.0", "gate_px"),
+            ("[detect]\nmin_area_px = 0", "detect.min_area_px"),
+            ("[label]\ngate_px = -1.0", "label.gate_px"),
             ("color = [0, 300, 0]", "color"),
         ] {
             let e = parse(text).unwrap_err().to_string();

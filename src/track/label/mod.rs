@@ -59,6 +59,7 @@ use super::Detection;
 use super::gate::{EpipolarGate, EpipolarGateParams};
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
+use crate::param_error::{ParamError, non_negative, positive};
 use crate::stereo::{Bundle, PairParams};
 
 /// Labeling settings.
@@ -205,22 +206,9 @@ impl LabelParams {
     /// Checks every field.
     ///
     /// # Errors
-    /// A message naming the field.
-    pub fn validate(&self) -> Result<(), String> {
-        let positive = |v: f64, name: &str| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be positive and finite"))
-            }
-        };
-        let non_negative = |v: f64, name: &str| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(format!("{name} must be non-negative and finite"))
-            }
-        };
+    /// [`ParamError`] naming the field.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let err = ParamError::new;
         let tp = &self.pair.triangulate;
         positive(
             tp.max_reprojection_px,
@@ -229,7 +217,10 @@ impl LabelParams {
         positive(tp.sigma_px, "pair.triangulate.sigma_px")?;
         let (z0, z1) = tp.depth_range_mm;
         if !(z0.is_finite() && z1.is_finite() && 0.0 < z0 && z0 < z1) {
-            return Err("pair.triangulate.depth_range_mm must be 0 < near < far".into());
+            return Err(err(
+                "pair.triangulate.depth_range_mm",
+                "must be 0 < near < far",
+            ));
         }
         non_negative(self.pair.ambiguity_margin_px, "pair.ambiguity_margin_px")?;
         non_negative(
@@ -241,21 +232,24 @@ impl LabelParams {
             "acquire_distance_tolerance_rel",
         )?;
         if self.acquire_distance_tolerance_mm + self.acquire_distance_tolerance_rel <= 0.0 {
-            return Err("acquire distance tolerances cannot both be 0".into());
+            return Err(err(
+                "acquire_distance_tolerance_mm",
+                "and acquire_distance_tolerance_rel cannot both be 0",
+            ));
         }
         non_negative(self.acquire_min_spread_mm, "acquire_min_spread_mm")?;
         if self.acquire_iterations == 0 {
-            return Err("acquire_iterations must be at least 1".into());
+            return Err(err("acquire_iterations", "must be at least 1"));
         }
         positive(self.acquire_gate_mm, "acquire_gate_mm")?;
         if !(0.0..=1.0).contains(&self.acquire_min_inlier_fraction) {
-            return Err("acquire_min_inlier_fraction must be in [0, 1]".into());
+            return Err(err("acquire_min_inlier_fraction", "must be in [0, 1]"));
         }
         if self.acquire_min_markers < 3 {
-            return Err("acquire_min_markers must be at least 3".into());
+            return Err(err("acquire_min_markers", "must be at least 3"));
         }
         if !(self.acquire_ambiguity_ratio > 0.0 && self.acquire_ambiguity_ratio <= 1.0) {
-            return Err("acquire_ambiguity_ratio must be in (0, 1]".into());
+            return Err(err("acquire_ambiguity_ratio", "must be in (0, 1]"));
         }
         positive(self.gate_px, "gate_px")?;
         non_negative(self.gate_growth_px_per_frame, "gate_growth_px_per_frame")?;
@@ -263,7 +257,7 @@ impl LabelParams {
         non_negative(self.velocity_gate_factor, "velocity_gate_factor")?;
         non_negative(self.pose_pass_extra_gate_px, "pose_pass_extra_gate_px")?;
         if !(self.ambiguity_ratio.is_finite() && self.ambiguity_ratio >= 1.0) {
-            return Err("ambiguity_ratio must be at least 1".into());
+            return Err(err("ambiguity_ratio", "must be at least 1"));
         }
         non_negative(self.ambiguity_margin_px, "ambiguity_margin_px")?;
         positive(self.max_reprojection_px, "max_reprojection_px")?;
@@ -272,38 +266,42 @@ impl LabelParams {
             ceiling_px: self.epipolar_gate.ceiling_px.max(self.max_reprojection_px),
             ..self.epipolar_gate.clone()
         }
-        .validate()?;
+        .validate()
+        .map_err(|e| e.within("epipolar_gate"))?;
         positive(self.gate_3d_factor, "gate_3d_factor")?;
         if !(0.0..=1.0).contains(&self.velocity_damping) {
-            return Err("velocity_damping must be in [0, 1]".into());
+            return Err(err("velocity_damping", "must be in [0, 1]"));
         }
         if self.lost_min_markers < 3 {
-            return Err("lost_min_markers must be at least 3".into());
+            return Err(err("lost_min_markers", "must be at least 3"));
         }
         if self.lost_frames == 0 {
-            return Err("lost_frames must be at least 1".into());
+            return Err(err("lost_frames", "must be at least 1"));
         }
         positive(self.max_pose_rms_mm, "max_pose_rms_mm")?;
         if self.max_frame_gap == 0 {
-            return Err("max_frame_gap must be at least 1".into());
+            return Err(err("max_frame_gap", "must be at least 1"));
         }
         non_negative(self.roi_margin_px, "roi_margin_px")?;
         if !(self.dot_diameter_mm.is_finite() && self.dot_diameter_mm > 0.0) {
-            return Err("dot_diameter_mm must be positive".into());
+            return Err(err("dot_diameter_mm", "must be positive"));
         }
         for (name, (lo, hi)) in [
             ("dot_size_ratio", self.dot_size_ratio),
             ("first_sighting_size_ratio", self.first_sighting_size_ratio),
         ] {
             if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
-                return Err(format!("{name} must be 0 <= low < high"));
+                return Err(err(name, "must be 0 <= low < high"));
             }
         }
         if self.acquire_max_detections < self.acquire_min_markers {
-            return Err("acquire_max_detections must be at least acquire_min_markers".into());
+            return Err(err(
+                "acquire_max_detections",
+                "must be at least acquire_min_markers",
+            ));
         }
         if self.acquire_iterations_per_frame == 0 {
-            return Err("acquire_iterations_per_frame must be at least 1".into());
+            return Err(err("acquire_iterations_per_frame", "must be at least 1"));
         }
         Ok(())
     }
@@ -320,7 +318,7 @@ pub enum LabelError {
     Rig(String),
     /// A parameter is out of range.
     #[error("label parameters: {0}")]
-    Params(String),
+    Params(ParamError),
 }
 
 /// One labeled marker of a frame.
