@@ -1,14 +1,15 @@
-//! Mutation fuzzing of every input parser: seed files (valid inputs of each format) are
-//! mutated at random (bytes flipped, inserted, deleted, repeated; numbers swapped for
-//! extreme ones; megabyte-long lines; cut files) and each parser must end every case with
-//! a value or a clean error: no panic, no case slower than [`MAX_CASE_SECS`], and the
+//! Mutation fuzzing of every input parser, video containers included: seed files (valid
+//! inputs of each format) are mutated at random (bytes flipped, inserted, deleted,
+//! repeated; numbers swapped for extreme ones; megabyte-long lines; cut files) and each
+//! parser must end every case with a value or a clean error: no panic, no case slower than [`MAX_CASE_SECS`], and the
 //! process's peak memory under [`MAX_PEAK_RSS_MB`] (a parser that allocates what a
 //! header declares aborts the process or blows that bound).
 //!
 //! `cargo test --test fuzz_parsers` runs a short pass (a few seconds per parser).
 //! The long run: `cargo test --release --test fuzz_parsers -- --ignored --test-threads=1`
-//! (`HELMCAP_FUZZ_CASES` sets the cases per parser, default 20,000); each parser prints
-//! one line with its cases, time, slowest case and peak memory.
+//! (`HELMCAP_FUZZ_CASES` sets the cases per parser, default 20,000; `HELMCAP_FUZZ_ONLY`
+//! a comma-separated list of the parsers to run, by their names in that test); each parser
+//! prints one line with its cases, time, slowest case and peak memory.
 //! A failing case is written to `$TMPDIR/helmcap-fuzz-<parser>-<case>.bin`.
 
 #![allow(clippy::unwrap_used)]
@@ -447,6 +448,59 @@ fn c3d(cases: usize) {
     });
 }
 
+/// Video containers and their frames, decoded by OpenCV's FFmpeg backend (the `[video]`
+/// sessions): an FFV1 Matroska file (lossless, what `ingest` and the tests use) and an
+/// MJPEG AVI (what many camera recorders write), 6 frames of 48×32 each, mutated (headers
+/// that declare huge frames or frame counts, cut files, flipped bits in the packets). Each
+/// case opens the file and decodes its first frames. FFmpeg is C: a crash in it would end
+/// the whole test process rather than be caught, which is a failure too.
+fn video(cases: usize) {
+    use helmcap::capture::video::VideoReader;
+    use opencv::core::{Mat, Size};
+    use opencv::prelude::*;
+    use opencv::videoio;
+
+    let dir = tempfile::tempdir().unwrap();
+    for (name, fourcc) in [("mkv", ['F', 'F', 'V', '1']), ("avi", ['M', 'J', 'P', 'G'])] {
+        let seed_path = dir.path().join(format!("seed.{name}"));
+        let code =
+            videoio::VideoWriter::fourcc(fourcc[0], fourcc[1], fourcc[2], fourcc[3]).unwrap();
+        let mut writer = videoio::VideoWriter::new_with_backend(
+            seed_path.to_str().unwrap(),
+            videoio::CAP_FFMPEG,
+            code,
+            60.0,
+            Size::new(48, 32),
+            false,
+        )
+        .unwrap();
+        if !writer.is_opened().unwrap() {
+            println!("fuzz video_{name}: skipped, OpenCV's FFmpeg backend cannot write {fourcc:?}");
+            continue;
+        }
+        for k in 0..6u32 {
+            let pixels: Vec<u8> = (0..48 * 32u32)
+                .map(|i| ((i % 48) * 5 + (i / 48) * 3 + k * 20) as u8)
+                .collect();
+            let mat = Mat::new_rows_cols_with_data(32, 48, &pixels)
+                .unwrap()
+                .try_clone()
+                .unwrap();
+            writer.write(&mat).unwrap();
+        }
+        writer.release().unwrap();
+        let seed = std::fs::read(&seed_path).unwrap();
+        let case_path = dir.path().join(format!("case.{name}"));
+        fuzz(&format!("video_{name}"), &[seed], cases, |b| {
+            std::fs::write(&case_path, b).unwrap();
+            let Ok(mut reader) = VideoReader::open(&case_path) else {
+                return false;
+            };
+            (0..reader.frame_count().min(8)).all(|i| reader.read_at(i).is_ok())
+        });
+    }
+}
+
 fn session(cases: usize) {
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path();
@@ -547,24 +601,43 @@ fn fuzz_images() {
 fn fuzz_c3d() {
     c3d(cases(false));
 }
+#[test]
+fn fuzz_video() {
+    video(cases(false));
+}
 
 // ---------------------------------------------------------------- the long run
+
+/// A parser's name in `HELMCAP_FUZZ_ONLY` and its fuzz run (cases → checks).
+type Parser = (&'static str, fn(usize));
 
 #[test]
 #[ignore = "long fuzz run: cargo test --release -- --ignored"]
 fn long_fuzz_every_parser() {
     let n = cases(true);
-    calibration(n);
-    manifest(n);
-    markers(n);
-    bundles(n);
-    obj(n);
-    ply(n);
-    usd(n);
-    profile(n);
-    live_config(n);
-    session(n);
-    syncbox(n);
-    images(n);
-    c3d(n);
+    let only = std::env::var("HELMCAP_FUZZ_ONLY").ok();
+    let parsers: [Parser; 14] = [
+        ("calibration", calibration),
+        ("manifest", manifest),
+        ("markers", markers),
+        ("bundles", bundles),
+        ("obj", obj),
+        ("ply", ply),
+        ("usd", usd),
+        ("profile", profile),
+        ("live", live_config),
+        ("session", session),
+        ("syncbox", syncbox),
+        ("images", images),
+        ("c3d", c3d),
+        ("video", video),
+    ];
+    for (name, run) in parsers {
+        if only
+            .as_deref()
+            .is_none_or(|o| o.split(',').any(|x| x.trim() == name))
+        {
+            run(n);
+        }
+    }
 }

@@ -159,7 +159,7 @@ pub fn decode_gray(bytes: &[u8], conversion: GrayConversion) -> Result<GrayImage
 }
 
 /// Checks a declared image size against the limits before anything is allocated.
-fn check_size(width: u32, height: u32, bytes_per_pixel: u64) -> Result<(), String> {
+pub(super) fn check_size(width: u32, height: u32, bytes_per_pixel: u64) -> Result<(), String> {
     if width == 0 || height == 0 {
         return Err(format!("image is {width}×{height} pixels"));
     }

@@ -12,6 +12,7 @@ use opencv::prelude::*;
 use opencv::videoio;
 
 use super::{CaptureError, GrayConversion, GrayImage};
+use crate::limits::MAX_FRAME_NUMBER;
 
 /// The pixels of one decoded video frame, 8 bits per sample.
 #[derive(Debug, Clone, PartialEq)]
@@ -129,21 +130,49 @@ impl VideoReader {
                 format!("the video's frame size {w}×{h} is invalid"),
             ));
         }
+        // A decoded frame is at most three bytes a pixel: the image limits hold for video
+        // frames too, checked before the first frame is decoded.
+        super::image::check_size(w as u32, h as u32, 3)
+            .map_err(|e| video_err(path, format!("the video's frames: {e}")))?;
+        let most_frames = MAX_FRAME_NUMBER + 1;
         let declared = get(videoio::CAP_PROP_FRAME_COUNT);
         let frame_count = if declared.is_finite() && declared >= 1.0 {
-            declared.round() as usize
+            if declared > most_frames as f64 {
+                return Err(video_err(
+                    path,
+                    format!(
+                        "the container declares {declared} frames, more than the \
+                         {most_frames} a recording may have"
+                    ),
+                ));
+            }
+            declared.round() as u64
         } else {
             // The container does not say: count by decoding (once, on a second reader).
             let mut counter = open_capture(path)?;
-            let mut n = 0;
+            let mut n = 0u64;
             while counter.grab().unwrap_or(false) {
                 n += 1;
+                if n > most_frames {
+                    return Err(video_err(
+                        path,
+                        format!(
+                            "the video has more than the {most_frames} frames a recording may have"
+                        ),
+                    ));
+                }
             }
             n
         };
         if frame_count == 0 {
             return Err(video_err(path, "the video has no frames"));
         }
+        let frame_count = usize::try_from(frame_count).map_err(|_| {
+            video_err(
+                path,
+                "the video has more frames than this machine can index",
+            )
+        })?;
         Ok(Self {
             path: path.to_path_buf(),
             capture,
