@@ -15,16 +15,7 @@ use helmcap::mesh::read_obj_positions;
 use nalgebra::Point3;
 
 mod common;
-use common::{helmcap, helmcap_cached, python_with};
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{helmcap, helmcap_cached, ok, python_with};
 
 fn solve(bundles: &Path, markers: &Path, out: &Path, cache: &Path) -> Output {
     helmcap_cached(

@@ -18,16 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 mod common;
-use common::{helmcap, python_with};
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{helmcap, ok, python_with};
 
 /// Renders a synthetic session with meshes and slip.
 fn synth(dir: &Path, frames: usize, extra: &[&str]) -> PathBuf {

@@ -14,16 +14,7 @@ use re_log_encoding::DecoderApp;
 use rerun::log::{Chunk, LogMsg};
 
 mod common;
-use common::helmcap;
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{helmcap, ok};
 
 /// A small synthetic session with ground-truth meshes.
 fn synth(dir: &Path, frames: usize) -> PathBuf {

@@ -7,6 +7,16 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// Asserts that a run succeeded; the message holds its standard output and error.
+pub fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Runs the `helmcap` binary built with the tests.
 pub fn helmcap(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_helmcap"))
