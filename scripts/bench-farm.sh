@@ -4,6 +4,9 @@
 # process, then as the OpenJD job `helmcap farm job` writes, run on this machine by
 # `openjd run` as one farm worker would (chunks of 600 frames, 60 warm-up); then the time
 # of one take's merge and the size of the report. Each timing is the median of RUNS runs.
+# The single pass runs with the job's label restarts (--relabel-every 600 --relabel-lead 60),
+# which make it the merged takes' reference byte for byte; one plain replay per take (no
+# restarts) gives the labeled share the restarts cost.
 #
 #   scripts/bench-farm.sh [DIR]     (HELMCAP=path/to/release/helmcap, RUNS=3)
 set -euo pipefail
@@ -28,7 +31,7 @@ for _ in $(seq "$runs"); do
   t=$(now)
   for i in 1 2 3 4; do
     "$helmcap" replay "$dir/day/take_0$i" --out "$dir/single/take_0$i" --overwrite --quiet \
-      --export usd > /dev/null
+      --export usd --relabel-every 600 --relabel-lead 60 > /dev/null
   done
   single+=("$(calc "$(now) - $t")")
 done
@@ -62,6 +65,13 @@ for _ in $(seq "$runs"); do
   t=$(now)
   "$helmcap" farm merge "$dir/results/chunks/take_01" --out "$dir/merged" --overwrite > /dev/null
   merge+=("$(calc "$(now) - $t")")
+done
+labeled() { sed -n 's/.*"labeled_fraction": *\([0-9.]*\).*/\1/p' "$1/metrics.json" | head -1; }
+for i in 1 2 3 4; do
+  "$helmcap" replay "$dir/day/take_0$i" --out "$dir/plain/take_0$i" --overwrite --quiet \
+    > /dev/null
+  echo "take_0$i labeled: $(labeled "$dir/plain/take_0$i") plain replay," \
+    "$(labeled "$dir/results/take_0$i") farm (= single pass with restarts)"
 done
 s=$(printf '%s\n' "${single[@]}" | median)
 c=$(printf '%s\n' "${chunked[@]}" | median)

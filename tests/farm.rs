@@ -9,19 +9,10 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 mod common;
-use common::helmcap;
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{helmcap, ok};
 
 /// JSON values equal but for the last bits of floating-point sums (summed in another
 /// order when chunks are merged).
@@ -59,6 +50,9 @@ fn s(p: &Path) -> &str {
 const FRAMES: usize = 240;
 const CHUNK: usize = 80;
 const OVERLAP: usize = 60;
+/// The replay options of a chunked take's single pass: labeling restarts where each
+/// chunk's warm-up starts (`farm job` passes the same to every chunk).
+const RELABEL: [&str; 4] = ["--relabel-every", "80", "--relabel-lead", "60"];
 
 fn synth(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
     let session = dir.join(name);
@@ -101,7 +95,11 @@ fn replay_chunks(session: &Path, chunks: &Path, cache: &Path) {
             session,
             &chunks.join(start.to_string()),
             cache,
-            &["--frames", &range, "--warm-up", &overlap],
+            &[
+                &["--frames", &range, "--warm-up", &overlap][..],
+                &RELABEL[..],
+            ]
+            .concat(),
         );
     }
 }
@@ -267,7 +265,7 @@ fn merged_chunks_equal_a_single_pass_across_slip_occlusion_and_blink() {
     let marker = moving_marker(&session, b - 10..b + 10);
     occlude(&session, &marker, b - 10..b + 10);
     let single = dir.join("single");
-    replay(&session, &single, &cache, &[]);
+    replay(&session, &single, &cache, &RELABEL);
     let chunks = dir.join("chunks");
     replay_chunks(&session, &chunks, &cache);
     let merged = dir.join("merged");
@@ -439,12 +437,21 @@ fn merge_refuses_missing_foreign_and_half_written_chunks() {
         &other,
         &foreign,
         &cache,
-        &["--frames", "80..160", "--warm-up", "60"],
+        &[
+            &["--frames", "80..160", "--warm-up", "60"][..],
+            &RELABEL[..],
+        ]
+        .concat(),
     );
     refuse(&[c(0), foreign.clone(), c(160)], "another take");
     // Overlapping chunks.
     let overlap = dir.join("overlap");
-    replay(&take, &overlap, &cache, &["--frames", "60..160"]);
+    replay(
+        &take,
+        &overlap,
+        &cache,
+        &[&["--frames", "60..160"][..], &RELABEL[..]].concat(),
+    );
     refuse(&[c(0), overlap, c(160)], "overlap");
     // A half-written chunk: its run was killed (no take.json), or a file was cut after.
     let killed = dir.join("killed");
@@ -572,7 +579,7 @@ fn openjd_checks_and_runs_a_two_take_job() {
     assert!(log.contains("Session ended successfully"), "{log}");
     // Each take merged, equal to a single pass of it.
     let single = dir.join("single");
-    replay(&a, &single, &dir.join("cache"), &[]);
+    replay(&a, &single, &dir.join("cache"), &RELABEL);
     for file in ["bundles.csv", "head_pose.csv", "tracks.csv"] {
         assert!(
             std::fs::read(single.join(file)).unwrap()

@@ -301,13 +301,15 @@ pub struct RigStageArgs {
 pub type AnimationSink = (Box<dyn helmcap::pipeline::Sink>, Vec<PathBuf>);
 
 impl RigStageArgs {
-    /// The animation sink when a rig or an animation export is asked for, and the files
-    /// it writes.
+    /// When a rig or an animation export is asked for: switches the pipeline's rig stage
+    /// on in `config` and returns the animation sink that writes its weights, and the
+    /// files it writes.
     ///
     /// # Errors
     /// When the rig cannot be loaded or solved for, or the name map cannot be read.
-    pub fn sink(
+    pub fn install(
         &self,
+        config: &mut helmcap::pipeline::PipelineConfig,
         take_dataset: &Dataset,
         cache: &DatasetArgs,
         livelink_csv: bool,
@@ -342,6 +344,7 @@ impl RigStageArgs {
         if usd_skel {
             files.push(out.join("face_skel.usda"));
         }
+        config.rig_solver = Some(solver.clone());
         let sink = helmcap::sink::AnimationSink::new(
             solver,
             AnimationOutputs {

@@ -121,6 +121,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         solve_stage: Default::default(),
         frames: None,
         warm_up: 0,
+        relabel_every: None,
+        relabel_lead: 0,
         no_solve: false,
         skip_bad_frames: false,
         queue: 4,

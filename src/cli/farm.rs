@@ -252,6 +252,7 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
         out: results,
         takes,
         overlap: args.overlap,
+        chunk: args.chunk,
         replay_options: options,
     };
     spec.validate().map_err(|e| anyhow::anyhow!(e))?;

@@ -200,7 +200,8 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
 
     let out = &args.out;
     let (mut sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
-    if let Some((sink, files)) = args.rig_stage.sink(
+    if let Some((sink, files)) = args.rig_stage.install(
+        &mut config,
         &ds,
         &dataset_args,
         args.export.contains(&Export::LivelinkCsv),

@@ -13,7 +13,7 @@ use helmcap::enhance::Enhancer;
 use helmcap::farm::{Fingerprint, TakeManifest, list_outputs, session_fingerprint};
 use helmcap::lgi::LgiParams;
 use helmcap::pipeline::{
-    FrameResult, GroundTruth, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
+    FrameResult, GroundTruth, LabelRestarts, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
 };
 use helmcap::sink::TakeDir;
 use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
@@ -94,6 +94,22 @@ pub struct ReplayArgs {
     /// starts as a single pass over the whole take would be at that frame.
     #[arg(long, value_name = "N", default_value_t = 0, requires = "frames")]
     pub warm_up: usize,
+    /// Start labeling again from nothing on the frames where the warm-ups of a farm job's
+    /// chunks of N frames start (`first + k·N − --relabel-lead`, `first` the take's first
+    /// frame). A chunk starts labeling from nothing, so the chunks of `farm job --chunk N
+    /// --overlap W` (which pass this with `--relabel-lead W`) merge into exactly what one
+    /// replay with these options writes.
+    #[arg(long, value_name = "N")]
+    pub relabel_every: Option<usize>,
+    /// With --relabel-every: frames before each chunk boundary where labeling restarts
+    /// (the farm job's warm-up).
+    #[arg(
+        long,
+        value_name = "W",
+        default_value_t = 0,
+        requires = "relabel_every"
+    )]
+    pub relabel_lead: usize,
     /// Stop after labeling and stabilization (no dense solve, no meshes).
     #[arg(long)]
     pub no_solve: bool,
@@ -295,6 +311,11 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
             .count(),
     );
     config.first_frame = written.0;
+    config.label_restarts = match args.relabel_every {
+        Some(0) => bail!("--relabel-every must be at least 1 frame"),
+        Some(n) => LabelRestarts::of_chunks(take_frames.0, n, args.relabel_lead),
+        None => None,
+    };
     let settings = settings_fingerprint(args, &config, &ds, &profile)?;
     let markers: Vec<String> = layout.markers.iter().map(|m| m.name.clone()).collect();
     if let Some(stages) = dense_stages(
@@ -314,7 +335,8 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
 
     let out = &args.out;
     let (mut sinks, mut outputs) = file_sinks(out, &args.export);
-    if let Some((sink, files)) = args.rig_stage.sink(
+    if let Some((sink, files)) = args.rig_stage.install(
+        &mut config,
         &ds,
         &dataset_args,
         args.export.contains(&Export::LivelinkCsv),
@@ -413,8 +435,11 @@ fn settings_fingerprint(
     };
     fp.add(
         format!(
-            "{exports:?} {lgi:?} keyframes={} enhance={} no_solve={} skip_bad_frames={} rig={:?}",
+            "{exports:?} {lgi:?} keyframes={} relabel={:?}/{} enhance={} no_solve={} \
+             skip_bad_frames={} rig={:?}",
             args.solve_stage.solve_keyframes,
+            args.relabel_every,
+            args.relabel_lead,
             args.enhance,
             args.no_solve,
             args.skip_bad_frames,

@@ -5,7 +5,9 @@
 //! Per take, two steps:
 //! - `Chunks <take>`: one task per chunk of frames. Its task parameters `Start` and `End`
 //!   are associated (`combination: "(Start, End)"`), so a task runs
-//!   `replay SESSION --frames Start..End --warm-up N --out OUT/chunks/<take>/<Start>`.
+//!   `replay SESSION --frames Start..End --warm-up W --relabel-every C --relabel-lead W
+//!   --out OUT/chunks/<take>/<Start>` (C the chunk size: labeling restarts where every
+//!   chunk's warm-up starts, so the merged take equals one replay with the same options).
 //! - `Merge <take>` (depends on its chunks): `farm merge OUT/chunks/<take> --out OUT/<take>`.
 //!
 //! Then one `Report` step (depends on every merge) writes the dailies report into
@@ -99,6 +101,10 @@ pub struct JobSpec {
     pub takes: Vec<JobTake>,
     /// Warm-up frames before each chunk (an INT job parameter, `WarmUpFrames`).
     pub overlap: usize,
+    /// Frames per chunk (the last chunk of a take may be shorter): every chunk passes it
+    /// to `replay --relabel-every`, so labeling restarts where each chunk's warm-up starts
+    /// in a single pass too.
+    pub chunk: usize,
     /// Replay options of every chunk.
     pub replay_options: Vec<ReplayOption>,
 }
@@ -130,6 +136,9 @@ impl JobSpec {
     pub fn validate(&self) -> Result<(), String> {
         if self.takes.is_empty() {
             return Err("no takes".into());
+        }
+        if self.chunk == 0 {
+            return Err("the chunk size must be at least one frame".into());
         }
         for (i, t) in self.takes.iter().enumerate() {
             if t.name.is_empty()
@@ -243,6 +252,10 @@ impl JobSpec {
                 q("--frames"),
                 q("{{Task.Param.Start}}..{{Task.Param.End}}"),
                 q("--warm-up"),
+                q("{{Param.WarmUpFrames}}"),
+                q("--relabel-every"),
+                q(&self.chunk.to_string()),
+                q("--relabel-lead"),
                 q("{{Param.WarmUpFrames}}"),
                 q("--out"),
                 q(&format!("{chunk_dir}/{{{{Task.Param.Start}}}}")),
@@ -430,6 +443,7 @@ mod tests {
             name: "day 1".into(),
             helmcap: "/opt/helmcap/bin/helmcap".into(),
             out: "/farm/out".into(),
+            chunk: 40,
             takes: vec![
                 JobTake {
                     name: "take_01".into(),

@@ -6,6 +6,7 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point2, Point3};
 
 use crate::align::PoseSource;
+use crate::animation::RigFit;
 use crate::capture::GrayImage;
 use crate::timecode::Timecode;
 use crate::track::Detection;
@@ -23,18 +24,21 @@ pub enum Stage {
     Solve,
     /// Detail enhancement.
     Enhance,
+    /// Rig weights from the dense mesh (`--rig`, the animation exports).
+    Rig,
     /// The sinks (files, viewer).
     Sinks,
 }
 
 impl Stage {
     /// Every stage, in pipeline order.
-    pub const ALL: [Stage; 6] = [
+    pub const ALL: [Stage; 7] = [
         Stage::Source,
         Stage::Track,
         Stage::Stabilize,
         Stage::Solve,
         Stage::Enhance,
+        Stage::Rig,
         Stage::Sinks,
     ];
 
@@ -47,6 +51,7 @@ impl Stage {
             Stage::Stabilize => "stabilize",
             Stage::Solve => "solve",
             Stage::Enhance => "enhance",
+            Stage::Rig => "rig",
             Stage::Sinks => "sinks",
         }
     }
@@ -67,12 +72,14 @@ impl std::fmt::Display for Stage {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StageTimings {
     /// Indexed by [`Stage::index`].
-    pub ms: [f64; 6],
+    pub ms: [f64; Stage::ALL.len()],
 }
 
 impl Default for StageTimings {
     fn default() -> Self {
-        Self { ms: [f64::NAN; 6] }
+        Self {
+            ms: [f64::NAN; Stage::ALL.len()],
+        }
     }
 }
 
@@ -193,6 +200,9 @@ pub struct FrameResult {
     pub mesh: Option<Arc<Vec<Point3<f64>>>>,
     /// The mesh was detail-enhanced.
     pub enhanced: bool,
+    /// The rig's weights that best reproduce `mesh`, and the fit's residual (None when the
+    /// take solves no rig, or the frame has no mesh).
+    pub rig_fit: Option<Arc<RigFit>>,
     /// Per-vertex distance to the ground-truth mesh, mm, when the session has one.
     pub mesh_error_mm: Option<Arc<Vec<f32>>>,
     /// RMS distance of the observed bundles to the ground truth (head frame), mm, when
@@ -224,6 +234,7 @@ impl FrameResult {
             pose_source: PoseSource::Missing,
             mesh: None,
             enhanced: false,
+            rig_fit: None,
             mesh_error_mm: None,
             bundle_error_rms_mm: None,
             timings: StageTimings::default(),

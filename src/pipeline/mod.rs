@@ -3,12 +3,14 @@
 //!
 //! ```text
 //! source ─> track (detect cam0 ∥ cam1, label, triangulate) ─> stabilize (robust Horn)
-//!        ─> solve (LGI) ─> [enhance] ─> sinks (CSV, meshes, C3D, viewer, metrics)
+//!        ─> solve (LGI) ─> [enhance] ─> [rig weights]
+//!        ─> sinks (CSV, meshes, C3D, rig weights, viewer, metrics)
 //! ```
 //!
 //! Each stage runs on its own named thread (`helmcap:<stage>`) and passes one envelope,
 //! [`FrameResult`], through bounded crossbeam channels; each stage fills its part and
-//! records its time. Detection of the two cameras runs in parallel (`rayon::join`) inside
+//! records its time; every stage between the source and the sinks runs the same loop
+//! (receive, time the work, record a failure as the take's error, send on). Detection of the two cameras runs in parallel (`rayon::join`) inside
 //! the track stage, which also feeds the labeler's predicted regions of interest back to
 //! the detector for the next frame (same thread: no race, no stale region).
 //!
@@ -28,7 +30,8 @@
 //! then returns the error naming the stage and frame.
 //!
 //! Depends on every stage module ([`crate::capture`], [`crate::track`],
-//! [`crate::stereo`], [`crate::align`], [`crate::solve`], [`crate::enhance`]).
+//! [`crate::stereo`], [`crate::align`], [`crate::solve`], [`crate::enhance`],
+//! [`crate::animation`]).
 
 pub mod frame;
 pub mod metrics;
@@ -42,7 +45,7 @@ pub use metrics::{
     AccuracyMetrics, GapMetrics, LabelingMetrics, LatencyHistogram, LatencyStats, Metrics,
     MetricsCollector, TimecodeRange,
 };
-pub use run::{PipelineConfig, run};
+pub use run::{LabelRestarts, PipelineConfig, run};
 pub use sink::{SessionMeta, Sink, SinkError};
 pub use truth::GroundTruth;
 

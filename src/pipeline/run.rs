@@ -14,6 +14,7 @@ use super::metrics::{Metrics, MetricsCollector};
 use super::sink::{SessionMeta, Sink};
 use super::truth::GroundTruth;
 use crate::align::{PoseSource, StabilizeParams, Stabilizer};
+use crate::animation::RigSolver;
 use crate::bundles::FrameBundles;
 use crate::camera::StereoRig;
 use crate::capture::{CaptureError, FrameSource};
@@ -46,6 +47,9 @@ pub struct PipelineConfig {
     pub solver: Option<Solver>,
     /// Detail enhancement of the solved mesh; None: off.
     pub enhancer: Option<Arc<Enhancer>>,
+    /// Rig weights of every solved (and enhanced) mesh, in a stage of their own
+    /// ([`FrameResult::rig_fit`], which the animation sinks write); None: off.
+    pub rig_solver: Option<RigSolver>,
     /// The dataset's neutral mesh (topology and UVs for the mesh sinks).
     pub neutral: Option<Arc<Mesh>>,
     /// Face vertices of the neutral (for accuracy figures).
@@ -82,6 +86,14 @@ pub struct PipelineConfig {
     pub first_frame: usize,
     /// Frames the source will deliver, when known (for sinks and progress).
     pub frame_count: Option<usize>,
+    /// Frames on which labeling starts again from nothing (a fresh [`Labeler`], as at the
+    /// start of the take); None: never. Default None.
+    ///
+    /// A farm chunk starts labeling from nothing at its warm-up's first frame, and the
+    /// labeler's state (which markers it tracks) depends on every frame before: the
+    /// restarts of a chunked take, done in one pass too, make that pass write exactly
+    /// what the merged chunks write (see `farm job`).
+    pub label_restarts: Option<LabelRestarts>,
     /// Frames before this index are warm-up: they go through every stage (the labeler,
     /// the stabilizer's held pose and the solver's temporal preference learn from them)
     /// but reach no sink and count in no metric but `warm_up_frames`. A chunk of a long
@@ -106,6 +118,7 @@ impl PipelineConfig {
             stabilize: StabilizeParams::default(),
             solver: None,
             enhancer: None,
+            rig_solver: None,
             neutral: None,
             face_vertices: None,
             ground_truth: None,
@@ -117,8 +130,36 @@ impl PipelineConfig {
             timecode_rate: None,
             first_frame: 0,
             frame_count: None,
+            label_restarts: None,
             write_from: 0,
         }
+    }
+}
+
+/// The frames on which labeling starts again from nothing
+/// ([`PipelineConfig::label_restarts`]): every frame `f` with `f % every == at`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LabelRestarts {
+    /// Period, frames (at least 1).
+    pub every: usize,
+    /// Phase, frames (below `every`).
+    pub at: usize,
+}
+
+impl LabelRestarts {
+    /// The restarts of a take chunked from frame `first` into chunks of `chunk` frames,
+    /// each warmed up by `warm_up` frames: the frames `first + k·chunk − warm_up`, where
+    /// the chunks' warm-ups start. `None` for a chunk size of 0.
+    pub fn of_chunks(first: usize, chunk: usize, warm_up: usize) -> Option<Self> {
+        (chunk > 0).then(|| Self {
+            every: chunk,
+            at: (first % chunk + chunk - warm_up % chunk) % chunk,
+        })
+    }
+
+    /// Whether labeling restarts on frame `index`.
+    pub fn restarts_at(&self, index: usize) -> bool {
+        self.every > 0 && index % self.every == self.at
     }
 }
 
@@ -165,6 +206,40 @@ fn spawn<T: Send + 'static>(
         })
 }
 
+/// Starts the thread of a middle stage: the one loop every stage between the source and
+/// the sinks runs (receive a frame, time the work, record a failure, send the frame on).
+///
+/// `work` does the stage's job on one frame and says whether it ran (a stage with nothing
+/// to do on a frame, such as the solve without a solver, leaves its time unset). A
+/// failure is recorded as the take's error (the first one wins, see [`record`]) and ends
+/// the stage, which closes its output and so lets the later stages drain and stop. The
+/// stage also ends when its input closes (the source is done) or the next stage is gone.
+///
+/// # Errors
+/// [`PipelineError::Thread`] when the thread cannot start.
+fn spawn_stage(
+    stage: Stage,
+    input: Receiver<Box<FrameResult>>,
+    output: Sender<Box<FrameResult>>,
+    errors: &ErrorSlot,
+    mut work: impl FnMut(&mut FrameResult) -> Result<bool, PipelineError> + Send + 'static,
+) -> Result<(Stage, JoinHandle<Result<(), PipelineError>>), PipelineError> {
+    let errors = errors.clone();
+    let handle = spawn(stage, move || {
+        for mut f in input {
+            let t = Instant::now();
+            if work(&mut f).map_err(|e| record(&errors, e))? {
+                f.timings.set(stage, ms_since(t));
+            }
+            if output.send(f).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    })?;
+    Ok((stage, handle))
+}
+
 fn ms_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
@@ -204,6 +279,7 @@ pub fn run(
         stabilize,
         solver,
         enhancer,
+        rig_solver,
         neutral,
         face_vertices,
         ground_truth,
@@ -215,6 +291,7 @@ pub fn run(
         timecode_rate,
         first_frame,
         frame_count,
+        label_restarts,
         write_from,
     } = config;
     let config_err = PipelineError::Config;
@@ -297,11 +374,10 @@ pub fn run(
     let (to_track, track_in) = bounded::<Box<FrameResult>>(entry_capacity);
     let (to_stabilize, stabilize_in) = bounded::<Box<FrameResult>>(capacity);
     let (to_solve, solve_in) = bounded::<Box<FrameResult>>(capacity);
-    let (to_enhance, enhance_in) = bounded::<Box<FrameResult>>(capacity);
-    let (to_sinks, sinks_in) = bounded::<Box<FrameResult>>(capacity);
     let marker_count = layout.len();
 
     let mut handles: Vec<(Stage, JoinHandle<Result<(), PipelineError>>)> = Vec::new();
+    let mut sinks_in: Option<Receiver<Box<FrameResult>>> = None;
     let spawned = (|| -> Result<(), PipelineError> {
         // Source.
         {
@@ -324,126 +400,115 @@ pub fn run(
             ));
         }
         // Track.
-        {
-            let errors = errors.clone();
-            let mut labeler = labeler;
-            let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
-            handles.push((
-                Stage::Track,
-                spawn(Stage::Track, move || {
-                    for mut f in track_in {
-                        let t = Instant::now();
-                        track_frame(&mut f, &mut labeler, &mut detectors, &detect);
-                        f.timings.set(Stage::Track, ms_since(t));
-                        if to_stabilize.send(f).is_err() {
-                            break;
-                        }
-                    }
-                    Ok(())
-                })
-                .map_err(|e| record(&errors, e))?,
-            ));
-        }
+        let fresh = label_restarts.map(|_| labeler.clone());
+        let mut labeler = labeler;
+        let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
+        handles.push(spawn_stage(
+            Stage::Track,
+            track_in,
+            to_stabilize,
+            &errors,
+            move |f| {
+                if let (Some(r), Some(fresh)) = (label_restarts, &fresh)
+                    && r.restarts_at(f.index)
+                {
+                    labeler = fresh.clone();
+                }
+                track_frame(f, &mut labeler, &mut detectors, &detect);
+                Ok(true)
+            },
+        )?);
         // Stabilize.
-        {
-            let truth = ground_truth.clone();
-            let mut stabilizer = stabilizer;
-            handles.push((
-                Stage::Stabilize,
-                spawn(Stage::Stabilize, move || {
-                    for mut f in stabilize_in {
-                        let t = Instant::now();
-                        stabilize_frame(&mut f, &mut stabilizer, truth.as_deref());
-                        f.timings.set(Stage::Stabilize, ms_since(t));
-                        if to_solve.send(f).is_err() {
-                            break;
-                        }
-                    }
-                    Ok(())
-                })?,
-            ));
-        }
+        let truth = ground_truth.clone();
+        let mut stabilizer = stabilizer;
+        handles.push(spawn_stage(
+            Stage::Stabilize,
+            stabilize_in,
+            to_solve,
+            &errors,
+            move |f| {
+                stabilize_frame(f, &mut stabilizer, truth.as_deref());
+                Ok(true)
+            },
+        )?);
         // Solve (also gap-fills markers from the solved surface).
-        {
-            let errors = errors.clone();
-            let truth = if enhancer.is_none() {
-                ground_truth.clone()
-            } else {
-                None
-            };
-            let layout = layout.clone();
-            let mut solver = solver;
-            let next = if enhancer.is_some() {
-                to_enhance.clone()
-            } else {
-                to_sinks.clone()
-            };
-            handles.push((
-                Stage::Solve,
-                spawn(Stage::Solve, move || {
-                    let mut last_seen: Vec<Option<usize>> = vec![None; layout.len()];
-                    for mut f in solve_in {
-                        let t = Instant::now();
-                        if let Some(s) = solver.as_mut() {
-                            if solve_keyframe_interval > 0
-                                && f.index.is_multiple_of(solve_keyframe_interval)
-                            {
-                                s.reset();
-                            }
-                            solve_frame(
-                                &mut f,
-                                s,
-                                &layout,
-                                &mut last_seen,
-                                gap_fill_half_life_frames,
-                                truth.as_deref(),
-                            )
-                            .map_err(|e| record(&errors, e))?;
-                            f.timings.set(Stage::Solve, ms_since(t));
-                        }
-                        if next.send(f).is_err() {
-                            break;
-                        }
-                    }
-                    Ok(())
-                })?,
-            ));
-        }
-        drop(to_enhance);
+        let truth = if enhancer.is_none() {
+            ground_truth.clone()
+        } else {
+            None
+        };
+        let solve_layout = layout.clone();
+        let mut solver = solver;
+        let mut last_seen: Vec<Option<usize>> = vec![None; layout.len()];
+        let (solve_out, mut tail) = bounded::<Box<FrameResult>>(capacity);
+        handles.push(spawn_stage(
+            Stage::Solve,
+            solve_in,
+            solve_out,
+            &errors,
+            move |f| {
+                let Some(s) = solver.as_mut() else {
+                    return Ok(false);
+                };
+                if solve_keyframe_interval > 0 && f.index.is_multiple_of(solve_keyframe_interval) {
+                    s.reset();
+                }
+                solve_frame(
+                    f,
+                    s,
+                    &solve_layout,
+                    &mut last_seen,
+                    gap_fill_half_life_frames,
+                    truth.as_deref(),
+                )?;
+                Ok(true)
+            },
+        )?);
         // Enhance.
         if let Some(enhancer) = enhancer {
-            let errors = errors.clone();
             let truth = ground_truth.clone();
-            let next = to_sinks.clone();
-            handles.push((
+            let (enhance_out, next) = bounded::<Box<FrameResult>>(capacity);
+            handles.push(spawn_stage(
                 Stage::Enhance,
-                spawn(Stage::Enhance, move || {
-                    for mut f in enhance_in {
-                        let t = Instant::now();
-                        if let Some(mesh) = &f.mesh {
-                            let detailed = enhancer.enhance(mesh).map_err(|e| {
-                                record(
-                                    &errors,
-                                    stage_err(Stage::Enhance, Some(f.index), e.to_string()),
-                                )
-                            })?;
-                            if let Some(truth) = &truth {
-                                f.mesh_error_mm =
-                                    truth.mesh_error_mm(f.index, &detailed).map(Arc::new);
-                            }
-                            f.mesh = Some(Arc::new(detailed));
-                            f.enhanced = true;
+                std::mem::replace(&mut tail, next),
+                enhance_out,
+                &errors,
+                move |f| {
+                    if let Some(mesh) = &f.mesh {
+                        let detailed = enhancer
+                            .enhance(mesh)
+                            .map_err(|e| stage_err(Stage::Enhance, Some(f.index), e.to_string()))?;
+                        if let Some(truth) = &truth {
+                            f.mesh_error_mm = truth.mesh_error_mm(f.index, &detailed).map(Arc::new);
                         }
-                        f.timings.set(Stage::Enhance, ms_since(t));
-                        if next.send(f).is_err() {
-                            break;
-                        }
+                        f.mesh = Some(Arc::new(detailed));
+                        f.enhanced = true;
                     }
-                    Ok(())
-                })?,
-            ));
+                    Ok(true)
+                },
+            )?);
         }
-        drop(to_sinks);
+        // Rig weights.
+        if let Some(mut rig_solver) = rig_solver {
+            let (rig_out, next) = bounded::<Box<FrameResult>>(capacity);
+            handles.push(spawn_stage(
+                Stage::Rig,
+                std::mem::replace(&mut tail, next),
+                rig_out,
+                &errors,
+                move |f| {
+                    let Some(mesh) = &f.mesh else {
+                        return Ok(false);
+                    };
+                    let fit = rig_solver
+                        .solve(mesh)
+                        .map_err(|e| stage_err(Stage::Rig, Some(f.index), e.to_string()))?;
+                    f.rig_fit = Some(Arc::new(fit));
+                    Ok(true)
+                },
+            )?);
+        }
+        sinks_in = Some(tail);
         Ok(())
     })();
 
@@ -457,6 +522,7 @@ pub fn run(
             let errors = errors.clone();
             let counters = counters.clone();
             let stop = stop.clone();
+            let sinks_in = sinks_in.unwrap_or_else(|| bounded(0).1);
             let handle = spawn(Stage::Sinks, move || {
                 let r = sink_stage(
                     &mut sinks,
@@ -771,5 +837,26 @@ fn sink_stage(
     match failure.or(finish_error) {
         Some(e) => Err(e),
         None => Ok(metrics),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn label_restarts_fall_where_chunks_start_their_warm_up() {
+        // Chunks of 600 from frame 0, 60 of warm-up: warm-ups start at 540, 1140, ...
+        let r = LabelRestarts::of_chunks(0, 600, 60).unwrap();
+        let hits: Vec<usize> = (0..2000).filter(|&f| r.restarts_at(f)).collect();
+        assert_eq!(hits, [540, 1140, 1740]);
+        // A take starting at frame 1000, chunks of 80, warm-up 60: 1020, 1100, ...
+        let r = LabelRestarts::of_chunks(1000, 80, 60).unwrap();
+        let hits: Vec<usize> = (1000..1200).filter(|&f| r.restarts_at(f)).collect();
+        assert_eq!(hits, [1020, 1100, 1180]);
+        // A warm-up longer than a chunk: the same residue.
+        let r = LabelRestarts::of_chunks(0, 50, 120).unwrap();
+        assert!(r.restarts_at(30) && r.restarts_at(80) && !r.restarts_at(0));
+        assert_eq!(LabelRestarts::of_chunks(0, 0, 60), None);
     }
 }

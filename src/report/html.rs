@@ -411,13 +411,13 @@ pub fn take_page(
         out.push_str("<p>Not recorded.</p>\n");
     } else {
         out.push_str("<table>\n<tr><th>stage</th><th class=\"num\">mean (ms)</th><th class=\"num\">p50</th><th class=\"num\">p99</th><th class=\"num\">max</th><th class=\"num\">frames</th></tr>\n");
-        const ORDER: [&str; 6] = ["source", "track", "stabilize", "solve", "enhance", "sinks"];
+        let order = crate::pipeline::Stage::ALL.map(crate::pipeline::Stage::name);
         let mut stages: Vec<(&String, _)> = m
             .latency_ms
             .iter()
             .filter(|(k, _)| *k != "end_to_end")
             .collect();
-        stages.sort_by_key(|(k, _)| ORDER.iter().position(|o| o == k).unwrap_or(ORDER.len()));
+        stages.sort_by_key(|(k, _)| order.iter().position(|o| o == k).unwrap_or(order.len()));
         let e2e = m.latency_ms.get_key_value("end_to_end");
         for (name, s) in stages.into_iter().chain(e2e) {
             let class = if name == "end_to_end" {

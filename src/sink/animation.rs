@@ -17,8 +17,10 @@
 //!   [`super::usd_skel`]); the weights are kept in memory until the end of the take
 //!   (4 bytes per shape and frame: 50 shapes for an hour at 60 fps is 43 MB).
 //!
-//! The writer works frame by frame, so the pipeline runs it as a sink ([`AnimationSink`],
-//! `replay/live --rig`) and `helmcap animate` runs it on finished takes.
+//! The writer works frame by frame. In the pipeline (`replay/live --rig`) the rig stage
+//! solves the weights ([`crate::pipeline::PipelineConfig::rig_solver`]) and the
+//! [`AnimationSink`] writes them; `helmcap animate` solves and writes finished takes
+//! with [`AnimationWriter::frame`].
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -28,7 +30,7 @@ use nalgebra::{Isometry3, Point3};
 use super::staged_file::StagedFile;
 use crate::animation::ResolvedMap;
 use crate::animation::livelink::{csv_header, csv_row, csv_timecode, yaw_pitch_roll};
-use crate::animation::{ARKIT_NAMES, NameMap, RigSolver};
+use crate::animation::{ARKIT_NAMES, NameMap, RigFit, RigSolver};
 use crate::pipeline::{FrameResult, Metrics, SessionMeta, Sink, SinkError};
 use crate::timecode::{Timecode, TimecodeRate};
 
@@ -188,6 +190,29 @@ impl AnimationWriter {
             .solver
             .solve(mesh)
             .map_err(|e| SinkError::Other(format!("rig solve, frame {index}: {e}")))?;
+        self.write_fit(index, timecode, &fit, cam0_from_head)
+    }
+
+    /// Writes the rows of one frame whose weights are solved already (by the pipeline's
+    /// rig stage, with a solver of the same rig).
+    ///
+    /// # Errors
+    /// [`SinkError::Other`] when the fit has another number of weights than the rig has
+    /// shapes; [`SinkError::Io`].
+    pub fn write_fit(
+        &mut self,
+        index: usize,
+        timecode: Option<&Timecode>,
+        fit: &RigFit,
+        cam0_from_head: Option<&Isometry3<f64>>,
+    ) -> Result<(), SinkError> {
+        if fit.weights.len() != self.solver.names().len() {
+            return Err(SinkError::Other(format!(
+                "frame {index}: {} rig weights for a rig of {} shapes",
+                fit.weights.len(),
+                self.solver.names().len()
+            )));
+        }
         let mut row = format!(
             "{index},{}",
             timecode
@@ -324,8 +349,9 @@ fn fallback_timecode(index: usize, fps: f64) -> Timecode {
 }
 
 /// The pipeline sink of `replay/live --rig`: an [`AnimationWriter`] fed with each
-/// frame's solved mesh and head pose. It runs on the sink thread, so its time shows in
-/// the sinks' latency.
+/// frame's rig weights ([`FrameResult::rig_fit`], from the pipeline's rig stage) and head
+/// pose. `solver` is a solver of the same rig as the stage's: the sink takes the shape
+/// names and targets from it (it solves nothing).
 #[derive(Debug)]
 pub struct AnimationSink {
     solver: Option<RigSolver>,
@@ -334,7 +360,7 @@ pub struct AnimationSink {
 }
 
 impl AnimationSink {
-    /// A sink solving with `solver` into `outputs`.
+    /// A sink writing the weights of `solver`'s rig into `outputs`.
     pub fn new(solver: RigSolver, outputs: AnimationOutputs) -> Self {
         Self {
             solver: Some(solver),
@@ -377,14 +403,19 @@ impl Sink for AnimationSink {
         let Some(w) = &mut self.writer else {
             return Ok(());
         };
-        match &fr.mesh {
-            Some(mesh) => w.frame(
+        match (&fr.rig_fit, &fr.mesh) {
+            (Some(fit), _) => w.write_fit(
                 fr.index,
                 fr.timecode.as_ref(),
-                mesh,
+                fit,
                 fr.cam0_from_head.as_ref(),
             ),
-            None => {
+            (None, Some(_)) => Err(SinkError::Other(format!(
+                "frame {} has a mesh but no rig weights: the pipeline's rig stage is off \
+                 (PipelineConfig::rig_solver)",
+                fr.index
+            ))),
+            (None, None) => {
                 w.skip();
                 Ok(())
             }
