@@ -320,12 +320,7 @@ impl RigStageArgs {
             return Ok(None);
         }
         let rig = match &self.rig {
-            Some(spec) if *spec != cache.dataset => DatasetArgs {
-                dataset: spec.clone(),
-                no_cache: cache.no_cache,
-                cache_dir: cache.cache_dir.clone(),
-            }
-            .load()?,
+            Some(spec) if *spec != cache.dataset => cache.for_dataset(spec.clone()).load()?,
             _ => take_dataset.clone(),
         };
         let params = RigSolveParams {

@@ -228,12 +228,7 @@ pub(super) fn tempfile_dir() -> anyhow::Result<PathBuf> {
 /// `helmcap bench rig`.
 fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
     use helmcap::rig::{Example, RigBuilder, RigParams};
-    let template = super::DatasetArgs {
-        dataset: dataset.to_string(),
-        no_cache: false,
-        cache_dir: None,
-    }
-    .load()?;
+    let template = super::DatasetArgs::new(dataset.to_string()).load()?;
     let n = template.shapes.len();
     let a0 = &template.neutral.positions;
     // The "actor": the template neutral under a smooth non-rigid warp (a few mm).

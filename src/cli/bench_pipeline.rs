@@ -18,7 +18,7 @@ use helmcap::synth::{
 };
 
 use super::DatasetArgs;
-use super::replay::load_layout;
+use super::take::load_layout;
 
 /// Arguments of `helmcap bench pipeline`.
 #[derive(Debug, clap::Args)]
@@ -131,19 +131,14 @@ fn median(v: Vec<f64>) -> f64 {
 /// The pipeline configuration of the built-in actor with LGI.
 fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfig> {
     let layout = load_layout("builtin", None)?;
-    let ds = DatasetArgs {
-        dataset: "builtin".into(),
-        no_cache: false,
-        cache_dir: None,
-    }
-    .load()?;
+    let ds = DatasetArgs::new("builtin").load()?;
     let neutral: Vec<_> = layout
         .markers
         .iter()
         .map(|m| ds.neutral.positions[m.vertex as usize])
         .collect();
     // The pipeline's own default.
-    let params = super::replay::SolveStageArgs::default().lgi_params()?;
+    let params = super::take::SolveStageArgs::default().lgi_params()?;
     let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
     let templates = layout.expression_templates(&ds);
     let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);

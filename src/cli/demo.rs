@@ -13,7 +13,8 @@ use helmcap::synth::{
     AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
 };
 
-use super::replay::{Export, ReplayArgs, load_layout, print_summary, replay};
+use super::replay::{ReplayArgs, replay};
+use super::take::{Export, TakeArgs, load_layout, print_summary};
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
@@ -102,32 +103,27 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let replay_args = ReplayArgs {
         session: session.clone(),
         calib: None,
-        profile: None,
-        dataset,
-        markers: None,
         out: args.out.join("replay"),
-        // The demo's own folder: each run replaces the previous one.
-        overwrite: true,
-        rrd: with_rerun.then(|| rrd.clone()),
-        // Half-size images keep the recording near 60 MB for 120 frames (240 MB at full
-        // size); the markers are drawn at full precision either way.
-        view: super::view::ViewerArgs {
-            rerun_image_downscale: 2,
-            ..Default::default()
+        take: TakeArgs {
+            dataset,
+            // The demo's own folder: each run replaces the previous one.
+            overwrite: true,
+            rrd: with_rerun.then(|| rrd.clone()),
+            // Half-size images keep the recording near 60 MB for 120 frames (240 MB at
+            // full size); the markers are drawn at full precision either way.
+            view: super::view::ViewerArgs {
+                rerun_image_downscale: 2,
+                ..Default::default()
+            },
+            export: vec![Export::Usd, Export::Obj, Export::C3d],
+            enhance: args.enhance,
+            ..TakeArgs::default()
         },
-        export: vec![Export::Usd, Export::Obj, Export::C3d],
-        rig_stage: Default::default(),
-        enhance: args.enhance,
-        solve_stage: Default::default(),
         frames: None,
         warm_up: 0,
         relabel_every: None,
         relabel_lead: 0,
-        no_solve: false,
         skip_bad_frames: false,
-        queue: 4,
-        no_cache: false,
-        cache_dir: None,
         quiet: false,
     };
     let t = Instant::now();

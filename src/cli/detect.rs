@@ -14,7 +14,7 @@ use opencv::core::{Mat, Point, Scalar};
 use opencv::prelude::*;
 
 use super::DatasetArgs;
-use super::replay::load_dataset_and_layout;
+use super::take::load_dataset_and_layout;
 
 /// Arguments of `helmcap detect`.
 #[derive(Debug, clap::Args)]
@@ -97,11 +97,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let labels: Option<LabeledFrame> = match (&rig, results.len()) {
         (Some(rig), 2) => {
             let (_, layout, neutral) = load_dataset_and_layout(
-                &DatasetArgs {
-                    dataset: args.dataset.clone(),
-                    no_cache: false,
-                    cache_dir: None,
-                },
+                &DatasetArgs::new(args.dataset.clone()),
                 args.markers.as_deref(),
             )?;
             names = layout.markers.iter().map(|m| m.name.clone()).collect();

@@ -55,11 +55,7 @@ pub fn build_enhancer(
     params: &EnhanceParams,
     onsets: bool,
 ) -> anyhow::Result<(Dataset, Enhancer)> {
-    let args = DatasetArgs {
-        dataset: database.to_string(),
-        no_cache: false,
-        cache_dir: None,
-    };
+    let args = DatasetArgs::new(database.to_string());
     if let Some(actor_params) = builtin_params(database)? {
         let actor = Actor::new(&actor_params).context("building the built-in actor")?;
         let dataset = if onsets {
@@ -249,12 +245,7 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
             Some(p) => Actor::new(&p)
                 .context("building the built-in actor")?
                 .to_dataset(),
-            None => DatasetArgs {
-                dataset: args.database.clone(),
-                no_cache: false,
-                cache_dir: None,
-            }
-            .load()?,
+            None => DatasetArgs::new(args.database.clone()).load()?,
         };
         let fine = coarse
             .subdivided(

@@ -9,12 +9,9 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use helmcap::camera::StereoRig;
 use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
-use helmcap::pipeline::{GroundTruth, PipelineConfig};
+use helmcap::pipeline::GroundTruth;
 
-use super::DatasetArgs;
-use super::replay::{
-    Export, dense_stages, load_dataset_and_layout, load_profile, print_summary, stop_flag,
-};
+use super::take::{TakeArgs, load_profile, print_summary, stop_flag};
 
 /// Arguments of `helmcap live`.
 #[derive(Debug, clap::Args)]
@@ -29,60 +26,19 @@ pub struct LiveArgs {
     /// Serial port of the sync box, overriding the config's `[syncbox] port`.
     #[arg(long, value_name = "PORT")]
     pub sync_port: Option<String>,
-    /// Capture profile: dot size, polarity, colour, detection and labeling settings
-    /// (default: the built-in defaults).
-    #[arg(long, value_name = "TOML")]
-    pub profile: Option<PathBuf>,
-    /// Dataset manifest, or `builtin[:SEED]` for the built-in actor.
-    #[arg(long, short = 'd', default_value = "builtin")]
-    pub dataset: String,
-    /// Marker layout CSV (default for the built-in actor: its shipped layout).
-    #[arg(long, short = 'k', value_name = "CSV")]
-    pub markers: Option<PathBuf>,
     /// Output folder (bundles.csv, head_pose.csv, tracks.csv, metrics.json,
     /// live_stats.json, exports).
     #[arg(long, short, default_value = "out/live")]
     pub out: PathBuf,
-    /// Export format (repeatable): obj, ply, usd, c3d.
-    #[arg(long, value_enum)]
-    pub export: Vec<Export>,
-    /// Also save a rerun recording (.rrd) of the take (view it with `rerun FILE`).
-    #[arg(long, value_name = "FILE")]
-    pub rrd: Option<PathBuf>,
-    /// Rerun viewer and logging options.
+    /// The options every take has (profile, dataset, exports, stages, caches).
     #[command(flatten)]
-    pub view: super::view::ViewerArgs,
-    /// Add the actor's fine detail to every solved mesh (Bermano et al. 2014).
-    #[arg(long)]
-    pub enhance: bool,
-    /// Settings of the dense solve.
-    #[command(flatten)]
-    pub solve_stage: super::replay::SolveStageArgs,
-    /// Rig solve per frame (`--rig`, `--name-map`, `--rig-smoothing`).
-    #[command(flatten)]
-    pub rig_stage: super::animate::RigStageArgs,
-    /// Stop after labeling and stabilization (no dense solve, no meshes).
-    #[arg(long)]
-    pub no_solve: bool,
+    pub take: TakeArgs,
     /// Stop after this many stereo frames from the cameras.
     #[arg(long, conflicts_with = "seconds")]
     pub frames: Option<usize>,
     /// Stop after this many seconds.
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// Frames each stage channel holds.
-    #[arg(long, default_value_t = 4)]
-    pub queue: usize,
-    /// Replace the take in --out: its files are removed before the run (a folder with
-    /// files is refused otherwise).
-    #[arg(long)]
-    pub overwrite: bool,
-    /// Do not read or write the dataset and LGI index caches.
-    #[arg(long)]
-    pub no_cache: bool,
-    /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
-    #[arg(long, value_name = "DIR")]
-    pub cache_dir: Option<PathBuf>,
 }
 
 /// The live source, stopped after a frame count or a duration, publishing its counters.
@@ -146,33 +102,19 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         );
     }
     let live_config = super::record::load_config(&args.config, args.sync_port.as_deref())?;
-    let dataset_args = DatasetArgs {
-        dataset: args.dataset.clone(),
-        no_cache: args.no_cache,
-        cache_dir: args.cache_dir.clone(),
-    };
     // A bad profile is an error before anything slow starts.
-    let profile = load_profile(args.profile.as_deref())?;
-    let (ds, layout, neutral_markers) =
-        load_dataset_and_layout(&dataset_args, args.markers.as_deref())?;
+    let profile = load_profile(args.take.profile.as_deref())?;
+    let take = args.take.load_dataset()?;
     let ground_truth = match &args.test_source {
-        Some(session) => GroundTruth::load(session, &layout)
+        Some(session) => GroundTruth::load(session, &take.layout)
             .with_context(|| format!("reading ground truth of {}", session.display()))?
             .map(Arc::new),
         None => None,
     };
-    let dense = dense_stages(
-        &ds,
-        &layout,
-        &dataset_args,
-        args.no_solve,
-        args.enhance,
-        &args.export,
-        &args.solve_stage,
-    )?;
+    let dense = args.take.dense_stages(&take)?;
 
     // One take per folder, one run per folder (held until the take is written).
-    let _take = helmcap::sink::TakeDir::claim(&args.out, args.overwrite)?;
+    let _take_dir = helmcap::sink::TakeDir::claim(&args.out, args.take.overwrite)?;
 
     // The cameras start last, once everything slow is built.
     let stop = stop_flag();
@@ -184,35 +126,18 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         .rig()
         .cloned()
         .context("the live config names no calibration (`calibration = ...`)")?;
-    let mut config = PipelineConfig::new(layout.clone(), Arc::new(neutral_markers), rig);
-    config.detect = profile.detect_params(Some(&config.rig));
-    config.label = profile.label_params();
-    config.expression_templates = Arc::new(layout.expression_templates(&ds));
-    config.channel_capacity = args.queue;
+    let mut config = args.take.pipeline_config(&take, rig, &profile);
     config.name = "live".into();
     config.timecode_rate = Some(source.timecode_rate());
     config.frame_count = args.frames;
     config.first_frame = 0;
     config.ground_truth = ground_truth;
     if let Some(stages) = dense {
-        stages.install(&mut config, &ds);
+        stages.install(&mut config, &take.dataset);
     }
 
     let out = &args.out;
-    let (mut sinks, mut outputs) = super::replay::file_sinks(out, &args.export);
-    if let Some((sink, files)) = args.rig_stage.install(
-        &mut config,
-        &ds,
-        &dataset_args,
-        args.export.contains(&Export::LivelinkCsv),
-        args.export.contains(&Export::UsdSkel),
-        out,
-    )? {
-        sinks.push(sink);
-        outputs.extend(files);
-    }
-    args.view
-        .sinks(args.rrd.as_deref(), &mut sinks, &mut outputs)?;
+    let (sinks, mut outputs) = args.take.sinks(&mut config, &take, out)?;
     outputs.push(out.join("live_stats.json"));
     let stats = Arc::new(Mutex::new(source.stats()));
     let limited = LimitedLive {

@@ -22,6 +22,7 @@ mod retime;
 mod rig;
 mod solve;
 mod synth;
+mod take;
 mod view;
 
 use std::path::{Path, PathBuf};
@@ -147,6 +148,24 @@ pub struct DatasetArgs {
 }
 
 impl DatasetArgs {
+    /// `dataset` with the default cache (read and written in the default folder).
+    pub fn new(dataset: impl Into<String>) -> Self {
+        Self {
+            dataset: dataset.into(),
+            no_cache: false,
+            cache_dir: None,
+        }
+    }
+
+    /// Another dataset with these cache options.
+    pub fn for_dataset(&self, dataset: impl Into<String>) -> Self {
+        Self {
+            dataset: dataset.into(),
+            no_cache: self.no_cache,
+            cache_dir: self.cache_dir.clone(),
+        }
+    }
+
     /// Loads the dataset, with a progress bar for manifests.
     pub fn load(&self) -> anyhow::Result<Dataset> {
         if let Some(params) = builtin_params(&self.dataset)? {

@@ -68,7 +68,7 @@ pub fn run(args: RecordArgs) -> anyhow::Result<()> {
         );
         config.record.queue_frames = q;
     }
-    let stop = super::replay::stop_flag();
+    let stop = super::take::stop_flag();
     let mut source: LiveSource = config
         .open_source(args.test_source.as_deref())
         .context("opening the live source")?;

@@ -344,12 +344,7 @@ fn parse_combinations(spec: &str, template: &Dataset) -> anyhow::Result<Vec<Comb
 }
 
 fn from_lgi(args: FromLgiArgs) -> anyhow::Result<()> {
-    let template = DatasetArgs {
-        dataset: args.template.clone(),
-        no_cache: args.dataset.no_cache,
-        cache_dir: args.dataset.cache_dir.clone(),
-    }
-    .load()?;
+    let template = args.dataset.for_dataset(args.template.clone()).load()?;
     let dataset = args.dataset.load()?;
     let layout = match &args.layout {
         Some(p) => MarkerLayout::read_csv(p).with_context(|| format!("reading {}", p.display()))?,

@@ -152,14 +152,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         Some(p) => Performer::Actor(Box::new(
             actor::Actor::new(&p).context("building the built-in actor")?,
         )),
-        None => Performer::Dataset(Box::new(
-            DatasetArgs {
-                dataset: args.dataset.clone(),
-                no_cache: false,
-                cache_dir: None,
-            }
-            .load()?,
-        )),
+        None => Performer::Dataset(Box::new(DatasetArgs::new(args.dataset.clone()).load()?)),
     };
     let layout = match (&args.markers, &performer) {
         (Some(p), _) => MarkerLayout::read_csv(p)?,
