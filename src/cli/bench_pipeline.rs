@@ -142,10 +142,10 @@ fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfi
     let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
     let templates = layout.expression_templates(&ds);
     let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);
-    config.expression_templates = Arc::new(templates);
-    config.solver = Some(Solver::lgi(index, &params)?);
-    config.neutral = Some(Arc::new(ds.neutral.clone()));
-    config.face_vertices = Some(ds.face_vertices.clone());
+    config.track.expression_templates = Arc::new(templates);
+    config.solve.solver = Some(Solver::lgi(index, &params)?);
+    config.solve.neutral = Some(Arc::new(ds.neutral.clone()));
+    config.solve.face_vertices = Some(ds.face_vertices.clone());
     Ok(config)
 }
 

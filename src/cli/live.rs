@@ -127,10 +127,10 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         .cloned()
         .context("the live config names no calibration (`calibration = ...`)")?;
     let mut config = args.take.pipeline_config(&take, rig, &profile);
-    config.name = "live".into();
-    config.timecode_rate = Some(source.timecode_rate());
-    config.frame_count = args.frames;
-    config.first_frame = 0;
+    config.take.name = "live".into();
+    config.take.timecode_rate = Some(source.timecode_rate());
+    config.take.frame_count = args.frames;
+    config.take.first_frame = 0;
     config.ground_truth = ground_truth;
     if let Some(stages) = dense {
         stages.install(&mut config, &take.dataset);

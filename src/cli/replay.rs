@@ -192,17 +192,17 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "take".into());
-    config.name = take_name.clone();
-    config.timecode_rate = info.timecode_rate;
-    config.write_from = written.0;
-    config.frame_count = Some(
+    config.take.name = take_name.clone();
+    config.take.timecode_rate = info.timecode_rate;
+    config.take.write_from = written.0;
+    config.take.frame_count = Some(
         info.frames
             .iter()
             .filter(|f| f.0 >= written.0 && f.0 <= written.1)
             .count(),
     );
-    config.first_frame = written.0;
-    config.label_restarts = match args.relabel_every {
+    config.take.first_frame = written.0;
+    config.track.label_restarts = match args.relabel_every {
         Some(0) => bail!("--relabel-every must be at least 1 frame"),
         Some(n) => LabelRestarts::of_chunks(take_frames.0, n, args.relabel_lead),
         None => None,
@@ -219,7 +219,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let out = &args.out;
     let (mut sinks, mut outputs) = args.take.sinks(&mut config, &take, out)?;
     if !args.quiet {
-        let bar = indicatif::ProgressBar::new(config.frame_count.unwrap_or(0) as u64);
+        let bar = indicatif::ProgressBar::new(config.take.frame_count.unwrap_or(0) as u64);
         bar.set_style(
             indicatif::ProgressStyle::with_template(
                 "replay [{bar:30}] {pos}/{len} frames {per_sec} {msg}",

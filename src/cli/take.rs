@@ -154,10 +154,11 @@ impl TakeArgs {
             Arc::new(take.neutral_markers.clone()),
             rig,
         );
-        config.detect = profile.detect_params(Some(&config.rig));
-        config.label = profile.label_params();
-        config.expression_templates = Arc::new(take.layout.expression_templates(&take.dataset));
-        config.channel_capacity = self.queue;
+        config.track.detect = profile.detect_params(Some(&config.rig));
+        config.track.label = profile.label_params();
+        config.track.expression_templates =
+            Arc::new(take.layout.expression_templates(&take.dataset));
+        config.channels.capacity = self.queue;
         config
     }
 
@@ -357,10 +358,10 @@ pub struct DenseStages {
 impl DenseStages {
     /// Switches the stages on in `config` (with the dataset's neutral and face vertices).
     pub fn install(self, config: &mut PipelineConfig, ds: &Dataset) {
-        config.solver = Some(self.solver);
-        config.solve_keyframe_interval = self.keyframes;
-        config.neutral = Some(Arc::new(ds.neutral.clone()));
-        config.face_vertices = Some(ds.face_vertices.clone());
+        config.solve.solver = Some(self.solver);
+        config.solve.keyframe_interval = self.keyframes;
+        config.solve.neutral = Some(Arc::new(ds.neutral.clone()));
+        config.solve.face_vertices = Some(ds.face_vertices.clone());
         config.enhancer = self.enhancer;
     }
 }

@@ -33,6 +33,7 @@
 //! [`crate::stereo`], [`crate::align`], [`crate::solve`], [`crate::enhance`],
 //! [`crate::animation`]).
 
+mod config;
 pub mod frame;
 pub mod metrics;
 mod run;
@@ -40,12 +41,16 @@ pub mod sink;
 pub mod sources;
 pub mod truth;
 
+pub use config::{
+    ChannelConfig, GAP_FILL_MEMORY_HALF_LIVES, LabelRestarts, PipelineConfig, SolveConfig,
+    TakeInfo, TrackConfig,
+};
 pub use frame::{BundleStatus, FrameResult, LabelCounts, MarkerResult, Stage, StageTimings};
 pub use metrics::{
     AccuracyMetrics, GapMetrics, LabelingMetrics, LatencyHistogram, LatencyStats, Metrics,
     MetricsCollector, TimecodeRange,
 };
-pub use run::{LabelRestarts, PipelineConfig, run};
+pub use run::run;
 pub use sink::{SessionMeta, Sink, SinkError};
 pub use truth::GroundTruth;
 
