@@ -1,11 +1,13 @@
 //! helmcap: facial performance capture from helmet-mounted stereo cameras.
 //!
-//! Layers, bottom up (a module may use only those above it in this list):
-//! - [`file_error`], [`param_error`], [`limits`], [`atomic_file`]: the one error of a file
-//!   and its line, the one error of a parameter out of range,
-//!   the stated size limits of every input, atomic writes.
-//! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics); the
-//!   two-column name files (label and name maps) are read by one private parser.
+//! Layers, bottom up (a module uses only those above it in this list; `tests/layers.rs`
+//! checks the `crate::` paths of every file against it):
+//! - [`file_error`], [`param_error`], [`limits`], [`atomic_file`], [`timecode`]: the one
+//!   error of a file and its line, the one error of a parameter out of range, the stated
+//!   size limits of every input, atomic writes, SMPTE timecode.
+//! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics, small box-
+//!   and simplex-constrained QPs); the two-column name files (label and name maps) are
+//!   read by one private parser.
 //! - [`mesh`]: polygon meshes, OBJ/PLY I/O, topology, Laplacians.
 //! - [`dataset`]: the actor's face shapes, manifests, caching, marker layouts, the
 //!   built-in synthetic actor.
@@ -14,11 +16,11 @@
 //! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
 //! - [`solve`]: the solve stage (bundles to dense mesh by any method) and its benchmark.
 //! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
-//! - [`capture`]: frame sources: replay of recorded sessions.
-//! - [`track`]: marker detection in images.
 //! - [`stereo`]: triangulation of stereo observations into bundles.
-//! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 //! - [`align`]: rigid alignment (Horn's method, robust variant) and head stabilization.
+//! - [`capture`]: frame sources: replay of recorded sessions, video, live cameras.
+//! - [`track`]: marker detection in images and labeling.
+//! - [`synth`]: synthetic helmet footage and calibration target images with ground truth.
 //! - [`enhance`]: detail enhancement and retiming (Bermano et al. 2014).
 //! - [`rig`]: actor-specific blendshape rigs (Li et al. 2010), scan registration, rigs
 //!   from LGI.
@@ -28,6 +30,8 @@
 //!   sink interface).
 //! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D) and the rerun
 //!   viewer / `.rrd` recordings.
+//! - [`farm`], [`report`]: take manifests, farm job bundles and merging; the dailies
+//!   report.
 
 pub mod align;
 pub mod animation;

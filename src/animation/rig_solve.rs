@@ -8,7 +8,7 @@
 //! `B`: the shapes' displacements from the neutral `x₀` at the face vertices (3 rows per
 //! vertex), `y` the frame's mesh, `w_prev` the previous frame's weights. `BᵀB` is formed
 //! once; per frame only `Bᵀ(y − x₀)` (one pass over the face vertices) and the box QP on
-//! the normal equations ([`crate::baseline::blendshape::box_qp`], ~50 unknowns) remain.
+//! the normal equations ([`crate::numeric::box_qp`], ~50 unknowns) remain.
 //!
 //! # Jaw
 //! The jaw is part of the rig's shapes (`jawOpen`, `jawLeft`, ... are shapes like the
@@ -21,8 +21,8 @@
 
 use nalgebra::{DMatrix, DVector, Point3};
 
-use crate::baseline::blendshape::box_qp;
 use crate::dataset::Dataset;
+use crate::numeric::box_qp;
 
 /// Rig solve parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -26,6 +26,7 @@ use nalgebra::{DMatrix, DVector, Point3};
 use super::BaselineError;
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout};
+use crate::numeric::box_qp;
 
 /// Blendshape fit parameters.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -166,129 +167,5 @@ impl BlendshapeSolver {
             }
         }
         Ok(out)
-    }
-}
-
-/// Minimizes `½ wᵀ H w − gᵀ w` over `0 ≤ w ≤ 1` (`H` symmetric positive definite) by a
-/// primal active-set method, starting from `start` clamped into the box.
-pub fn box_qp(
-    h: &DMatrix<f64>,
-    g: &DVector<f64>,
-    start: &DVector<f64>,
-    max_iter: usize,
-) -> DVector<f64> {
-    let n = g.len();
-    let mut w = start.map(|x| x.clamp(0.0, 1.0));
-    // Working set: weights held at a bound.
-    let mut fixed: Vec<bool> = w.iter().map(|&x| x <= 0.0 || x >= 1.0).collect();
-    for _ in 0..max_iter.max(1) {
-        let free: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
-        // Minimizer over the free weights with the others at their bounds.
-        let target = if free.is_empty() {
-            w.clone()
-        } else {
-            let hff = DMatrix::from_fn(free.len(), free.len(), |a, b| h[(free[a], free[b])]);
-            let mut rhs = DVector::from_fn(free.len(), |a, _| g[free[a]]);
-            for (a, &i) in free.iter().enumerate() {
-                for j in 0..n {
-                    if fixed[j] {
-                        rhs[a] -= h[(i, j)] * w[j];
-                    }
-                }
-            }
-            let Some(chol) = hff.cholesky() else {
-                break;
-            };
-            let sol = chol.solve(&rhs);
-            let mut t = w.clone();
-            for (a, &i) in free.iter().enumerate() {
-                t[i] = sol[a];
-            }
-            t
-        };
-        // Step toward it, stopping at the first bound.
-        let mut alpha = 1.0;
-        let mut blocking = None;
-        for &i in &free {
-            let d = target[i] - w[i];
-            if d < 0.0 && target[i] < 0.0 {
-                let a = w[i] / -d;
-                if a < alpha {
-                    alpha = a;
-                    blocking = Some((i, 0.0));
-                }
-            } else if d > 0.0 && target[i] > 1.0 {
-                let a = (1.0 - w[i]) / d;
-                if a < alpha {
-                    alpha = a;
-                    blocking = Some((i, 1.0));
-                }
-            }
-        }
-        for &i in &free {
-            w[i] += alpha * (target[i] - w[i]);
-        }
-        if let Some((i, bound)) = blocking {
-            w[i] = bound;
-            fixed[i] = true;
-            continue;
-        }
-        // At the subproblem's minimizer: release the bound weight whose gradient points
-        // most into the box, or stop (KKT conditions hold).
-        let grad = h * &w - g;
-        let mut worst = (0.0, None);
-        for i in 0..n {
-            if !fixed[i] {
-                continue;
-            }
-            let v = if w[i] <= 0.0 { -grad[i] } else { grad[i] };
-            if v > worst.0 + 1e-14 {
-                worst = (v, Some(i));
-            }
-        }
-        match worst.1 {
-            Some(i) => fixed[i] = false,
-            None => break,
-        }
-    }
-    w
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn box_qp_matches_brute_force_on_small_problems() {
-        // Random SPD problems in 3 variables; compare against a fine grid search.
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
-        for _ in 0..20 {
-            let a = DMatrix::from_fn(5, 3, |_, _| rnd());
-            let h = a.transpose() * &a + DMatrix::identity(3, 3) * 0.01;
-            let g = DVector::from_fn(3, |_, _| rnd() * 2.0);
-            let w = box_qp(&h, &g, &DVector::zeros(3), 100);
-            let f = |x: &DVector<f64>| 0.5 * (x.transpose() * &h * x)[0] - g.dot(x);
-            let fw = f(&w);
-            let n = 40;
-            for i in 0..=n {
-                for j in 0..=n {
-                    for k in 0..=n {
-                        let x = DVector::from_vec(vec![
-                            i as f64 / n as f64,
-                            j as f64 / n as f64,
-                            k as f64 / n as f64,
-                        ]);
-                        assert!(fw <= f(&x) + 1e-12, "{fw} > {}", f(&x));
-                    }
-                }
-            }
-            assert!(w.iter().all(|&x| (0.0..=1.0).contains(&x)));
-        }
     }
 }

@@ -33,6 +33,19 @@ pub enum CameraError {
     },
 }
 
+/// The default helmet rig (`calib/helmet-fisheye.yaml`): two fisheye cameras 1280×1024
+/// stacked vertically, 70 mm apart, toed in toward a face about 225 mm away (what the
+/// synthetic footage is rendered with).
+///
+/// # Errors
+/// Only if the shipped file were broken (a bug).
+pub fn default_helmet_rig() -> Result<StereoRig, CalibFileError> {
+    parse_rig(
+        std::path::Path::new("calib/helmet-fisheye.yaml"),
+        include_str!("../../calib/helmet-fisheye.yaml"),
+    )
+}
+
 /// A calibrated stereo pair: cam0 is the reference frame, and a point `X0` in cam0 maps to
 /// cam1 as `X1 = R·X0 + T` (millimetres).
 #[derive(Debug, Clone, PartialEq)]

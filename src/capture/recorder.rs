@@ -873,7 +873,7 @@ mod tests {
     fn write_failures_are_counted_and_leave_no_half_frames() {
         let dir = tempfile::tempdir().unwrap();
         let root = dir.path().join("fail");
-        let rig = crate::synth::default_rig().unwrap();
+        let rig = crate::camera::default_helmet_rig().unwrap();
         let mut rec =
             Recorder::create(&root, header(Some(rig.clone())), RecorderParams::default()).unwrap();
         let frame = |index: usize| StereoFrame {

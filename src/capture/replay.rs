@@ -610,7 +610,11 @@ mod tests {
 
     fn write_png(path: &Path, w: u32, h: u32) {
         let data: Vec<u8> = (0..w * h).map(|i| (i % 251) as u8).collect();
-        crate::synth::write_png_gray(path, w, h, &data).unwrap();
+        let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+        let mut enc = png::Encoder::new(file, w, h);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&data).unwrap();
     }
 
     /// A 3-frame session of 8×6 images without calibration.
@@ -683,7 +687,7 @@ mod tests {
     fn wrong_size_and_missing_folder_are_errors() {
         let dir = tempfile::tempdir().unwrap();
         session(dir.path());
-        let rig = crate::synth::default_rig().unwrap();
+        let rig = crate::camera::default_helmet_rig().unwrap();
         let calib = dir.path().join("rig.yaml");
         crate::camera::write_rig(&calib, &rig).unwrap();
         let params = ReplayParams {

@@ -10,11 +10,11 @@ use super::deformation_gradient::{
 };
 use super::frequency::{LowPass, LowPassParams};
 use super::poisson::{PoissonParams, PoissonSolver};
-use super::qp::convex_weights;
 use super::regions::{RegionWeights, VoluntaryRegions, seed_and_grow_patches};
 use crate::align::horn_alignment;
 use crate::dataset::Dataset;
 use crate::mesh::{Mesh, triangle_areas};
+use crate::numeric::convex_weights;
 
 /// Tuning of [`Enhancer`]. Every field has a default; `validate` checks them all.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -10,7 +10,8 @@
 //!
 //! Kernels, one file each: [`deformation_gradient`] (Sumner & Popović gradients, polar
 //! encoding), [`frequency`] (low-pass filter, Eq. 1), [`poisson`] (reconstruction),
-//! [`qp`] (convex weights, Eq. 2-3), [`regions`] (voluntary regions, patches),
+//! [`regions`] (voluntary regions, patches); the convex weights of Eq. 2-3 are
+//! [`crate::numeric::convex_weights`],
 //! [`retime`] (sequence projection and retiming, §6).
 //!
 //! Depends on [`crate::mesh`], [`crate::dataset`] and [`crate::align`].
@@ -19,10 +20,10 @@ pub mod deformation_gradient;
 pub mod enhancer;
 pub mod frequency;
 pub mod poisson;
-pub mod qp;
 pub mod regions;
 pub mod retime;
 
+pub use crate::numeric::convex_weights;
 pub use deformation_gradient::{
     PolarCode, decode_polar, deformation_gradients, encode_polar, polar_decomposition,
     rest_frame_inverses, triangle_frame,
@@ -30,7 +31,6 @@ pub use deformation_gradient::{
 pub use enhancer::{EnhanceParams, EnhanceTimings, Enhanced, Enhancer};
 pub use frequency::{LowPass, LowPassParams};
 pub use poisson::{PoissonParams, PoissonSolver};
-pub use qp::convex_weights;
 pub use regions::{REGION_NAMES, RegionWeights, VoluntaryRegions, seed_and_grow_patches};
 pub use retime::{
     Retimed, Retimer, Sequence, SequenceProjection, builtin_sequences, project_on_segment,

@@ -8,8 +8,8 @@ use nalgebra::{Point3, Vector3};
 
 use super::LgiParams;
 use super::index::JawSpace;
-use crate::baseline::blendshape::box_qp;
 use crate::dataset::{Dataset, JawPose, JawRig};
+use crate::numeric::box_qp;
 
 /// The jaw space of `dataset` when `params.use_jaw` is set, the dataset has a jaw rig and
 /// every shape has a jaw pose; `None` otherwise (the index then works on the shapes as

@@ -5,9 +5,13 @@
 //!   Cholesky (`faer`) and solved many times (Poisson reconstruction and curvature flow in
 //!   `enhance`, non-rigid ICP and deformation transfer in `rig`).
 //! - [`upper_median`]: the median the robust estimators and the benchmarks report.
+//! - [`box_qp`] and [`convex_weights`]: small dense quadratic programs over the box and
+//!   the simplex (blendshape and rig weights, the jaw, the enhancer's combinations).
 
+mod qp;
 mod spd;
 mod stats;
 
+pub use qp::{box_qp, convex_weights};
 pub use spd::{FactorError, SpdFactor};
 pub use stats::upper_median;

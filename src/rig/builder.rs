@@ -51,10 +51,10 @@ use nalgebra_sparse::{CooMatrix, CsrMatrix};
 use rayon::prelude::*;
 
 use super::RigError;
-use crate::baseline::blendshape::box_qp;
 use crate::dataset::{Dataset, Shape};
 use crate::enhance::{PoissonParams, rest_frame_inverses, triangle_frame};
 use crate::numeric::SpdFactor;
+use crate::numeric::box_qp;
 
 /// Tuning of [`RigBuilder`]; defaults are the paper's values (Li et al. 2010 §3-4).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -172,7 +172,7 @@ mod tests {
 
     #[test]
     fn pairs_a_cloud_and_drops_ambiguity() {
-        let rig = crate::synth::default_rig().unwrap();
+        let rig = crate::camera::default_helmet_rig().unwrap();
         // Jittered points on a curved surface 230-280 mm away.
         let mut pts = Vec::new();
         let mut s = 99u64;

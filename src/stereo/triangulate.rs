@@ -150,7 +150,7 @@ mod tests {
 
     #[test]
     fn recovers_points_exactly_and_gates_noise() {
-        let rig = crate::synth::default_rig().unwrap();
+        let rig = crate::camera::default_helmet_rig().unwrap();
         let p = TriangulateParams::default();
         for truth in [
             Point3::new(0.0, 35.0, 225.0),

@@ -314,16 +314,13 @@ impl SynthParams {
     }
 }
 
-/// The default helmet rig (`calib/helmet-fisheye.yaml`): two fisheye cameras 1280×1024
-/// stacked vertically, 70 mm apart, toed in toward a face about 225 mm away.
+/// The default helmet rig the footage is rendered with
+/// ([`crate::camera::default_helmet_rig`]).
 ///
 /// # Errors
 /// Only if the shipped file were broken (a bug).
 pub fn default_rig() -> Result<StereoRig, crate::camera::CalibFileError> {
-    crate::camera::parse_rig(
-        std::path::Path::new("calib/helmet-fisheye.yaml"),
-        include_str!("../../calib/helmet-fisheye.yaml"),
-    )
+    crate::camera::default_helmet_rig()
 }
 
 /// What is rendered: a mesh whose positions change per frame, with markers on vertices.

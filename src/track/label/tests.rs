@@ -178,13 +178,13 @@ fn visible_both(truth: &[Vec<Option<usize>>; 2]) -> usize {
 }
 
 fn labeler(layout: &MarkerLayout, pts: &[Point3<f64>]) -> Labeler {
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     Labeler::new(rig, layout, pts.to_vec(), LabelParams::default()).unwrap()
 }
 
 #[test]
 fn acquires_under_arbitrary_head_poses() {
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(3);
     assert!(pts.len() >= 90, "{}", pts.len());
     let mut rng = Rng::new(11);
@@ -225,7 +225,7 @@ fn no_acquisition_without_a_face() {
     let (layout, pts) = face(3);
     let mut lab = labeler(&layout, &pts);
     let mut rng = Rng::new(5);
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     // Random points in front of the cameras: pairs exist but nothing registers.
     let cloud: Vec<Point3<f64>> = (0..90)
         .map(|_| {
@@ -275,7 +275,7 @@ fn run_sequence(
     hide: Option<(std::ops::Range<usize>, Vec<usize>)>,
     seed: u64,
 ) -> (usize, usize, usize, usize) {
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(seed);
     let mut lab = labeler(&layout, &pts);
     let mut rng = Rng::new(seed + 100);
@@ -367,7 +367,7 @@ fn spurious_blobs_are_rejected() {
 fn markers_in_contact_are_dropped_not_swapped() {
     // Two markers slide toward each other until they nearly touch (lips pressing),
     // then apart again.
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(6);
     let mut lab = labeler(&layout, &pts);
     let mut rng = Rng::new(66);
@@ -430,7 +430,7 @@ fn markers_in_contact_are_dropped_not_swapped() {
 
 #[test]
 fn never_panics_on_garbage_and_recovers() {
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(3);
     let mut lab = labeler(&layout, &pts);
     let bad = |x: f64, y: f64| Detection {
@@ -473,7 +473,7 @@ fn never_panics_on_garbage_and_recovers() {
 
 #[test]
 fn rejects_bad_construction() {
-    let rig = crate::synth::default_rig().unwrap();
+    let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(3);
     let short = pts[..5].to_vec();
     assert!(matches!(
