@@ -255,7 +255,7 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
         chunk: args.chunk,
         replay_options: options,
     };
-    spec.validate().map_err(|e| anyhow::anyhow!(e))?;
+    spec.validate()?;
     spec.write(&args.out)
         .with_context(|| format!("writing the job bundle into {}", args.out.display()))?;
     let tasks: usize = spec.takes.iter().map(|t| t.chunks.len()).sum();

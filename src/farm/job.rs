@@ -19,6 +19,8 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use crate::param_error::ParamError;
+
 /// One chunk of a take: frames `start..end` (end excluded) are written, frames
 /// `warm_up_from..start` run first to warm the stages up.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -132,49 +134,50 @@ impl JobSpec {
     /// file options' parameters, at least one chunk per take.
     ///
     /// # Errors
-    /// A message naming the problem.
-    pub fn validate(&self) -> Result<(), String> {
+    /// [`ParamError`] naming what is wrong (`take name "a/b" cannot name a folder`).
+    pub fn validate(&self) -> Result<(), ParamError> {
         if self.takes.is_empty() {
-            return Err("no takes".into());
+            return Err(ParamError::new("takes", "must name at least one session"));
         }
         if self.chunk == 0 {
-            return Err("the chunk size must be at least one frame".into());
+            return Err(ParamError::new("chunk", "must be at least one frame"));
         }
         for (i, t) in self.takes.iter().enumerate() {
+            let name_err = |requirement: String| ParamError::new("take name", requirement);
             if t.name.is_empty()
                 || t.name
                     .chars()
                     .any(|c| c.is_control() || c == '/' || c == '\\')
             {
-                return Err(format!("take name {:?} cannot name a folder", t.name));
+                return Err(name_err(format!("{:?} cannot name a folder", t.name)));
             }
             if format!("Chunks {}", t.name).len() > MAX_STEP_NAME {
-                return Err(format!(
-                    "take name {:?} is longer than OpenJD's step names allow ({} characters \
-                     with \"Chunks \")",
+                return Err(name_err(format!(
+                    "{:?} is longer than OpenJD's step names allow ({} characters with \
+                     \"Chunks \")",
                     t.name, MAX_STEP_NAME
-                ));
+                )));
             }
-            if self.takes[..i].iter().any(|o| o.name == t.name) {
-                return Err(format!(
-                    "two takes are named {:?} ({} and {}): their outputs would collide",
+            if let Some(other) = self.takes[..i].iter().find(|o| o.name == t.name) {
+                return Err(name_err(format!(
+                    "{:?} is used by two takes ({} and {}): their outputs would collide",
                     t.name,
-                    self.takes[..i]
-                        .iter()
-                        .find(|o| o.name == t.name)
-                        .map_or_else(String::new, |o| o.session.display().to_string()),
+                    other.session.display(),
                     t.session.display()
-                ));
+                )));
             }
             if t.chunks.is_empty() {
-                return Err(format!("take {} has no frames", t.name));
+                return Err(ParamError::new("take", format!("{} has no frames", t.name)));
             }
         }
         for o in &self.replay_options {
             if let ReplayOption::File { param, .. } = o
                 && !is_identifier(param)
             {
-                return Err(format!("{param:?} cannot name a job parameter"));
+                return Err(ParamError::new(
+                    "parameter name",
+                    format!("{param:?} cannot name a job parameter"),
+                ));
             }
         }
         Ok(())
@@ -496,7 +499,7 @@ mod tests {
     fn duplicate_or_unfit_take_names_are_refused() {
         let mut s = spec();
         s.takes[1].name = "take_01".into();
-        assert!(s.validate().unwrap_err().contains("two takes"));
+        assert!(s.validate().unwrap_err().to_string().contains("two takes"));
         let mut s = spec();
         s.takes[1].name = "x".repeat(70);
         assert!(s.validate().is_err());
