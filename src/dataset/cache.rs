@@ -1,5 +1,5 @@
 //! Binary dataset cache: a loaded [`Dataset`] written once, reloaded in a fraction of the
-//! time it takes to parse its OBJ files.
+//! time it takes to parse its OBJ files; [`load_dataset`] loads a manifest through it.
 //!
 //! # Format (little-endian)
 //! `b"HLMCDS02"`, the 64-bit cache key, the length of a bincode header (topology, UVs,
@@ -233,4 +233,65 @@ pub fn write_cache(path: &Path, key: u64, dataset: &Dataset) -> Result<(), Datas
         Ok(())
     })
     .map_err(io)
+}
+
+/// Options for [`load_dataset`].
+#[derive(Debug, Clone, Default)]
+pub struct LoadOptions {
+    /// Cache folder; `None` uses [`default_cache_dir`].
+    pub cache_dir: Option<PathBuf>,
+    /// Skip the cache entirely (neither read nor write it).
+    pub no_cache: bool,
+    /// Show a progress bar while reading mesh files.
+    pub progress: bool,
+}
+
+/// Loads the dataset a manifest describes, from the binary cache when it is fresh.
+///
+/// The cache is keyed by the manifest and every file it names (path, size, modification
+/// time); any change rebuilds it. A cache that cannot be read or written costs a warning,
+/// never the load.
+///
+/// # Errors
+/// As [`Manifest::read`] and [`Manifest::load`].
+pub fn load_dataset(path: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError> {
+    let manifest = Manifest::read(path)?;
+    let cache_file = (!options.no_cache).then(|| {
+        let dir = options.cache_dir.clone().unwrap_or_else(default_cache_dir);
+        cache_path(&dir, &manifest)
+    });
+    let key = cache_key(&manifest);
+    if let (Some(file), Some(key)) = (&cache_file, key) {
+        match read_cache(file, key) {
+            Ok(Some(ds)) => {
+                tracing::debug!("dataset {} from cache {}", ds.name, file.display());
+                return Ok(ds);
+            }
+            Ok(None) => tracing::debug!("cache {} is stale or absent", file.display()),
+            Err(e) => tracing::warn!("ignoring unreadable dataset cache {}: {e}", file.display()),
+        }
+    }
+    let bar = options.progress.then(|| {
+        let bar = indicatif::ProgressBar::new((manifest.shapes.len() + 1) as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("loading {msg} [{bar:30}] {pos}/{len} files")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_message(manifest.name());
+        bar
+    });
+    let ds = manifest.load(&|done, _| {
+        if let Some(b) = &bar {
+            b.set_position(done as u64);
+        }
+    })?;
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    if let (Some(file), Some(key)) = (&cache_file, key)
+        && let Err(e) = write_cache(file, key, &ds)
+    {
+        tracing::warn!("could not write dataset cache {}: {e}", file.display());
+    }
+    Ok(ds)
 }

@@ -721,70 +721,6 @@ fn read_weights(path: &Path, expected: usize) -> Result<Vec<f64>, DatasetError> 
     Ok(out)
 }
 
-/// Options for [`load_dataset`].
-#[derive(Debug, Clone, Default)]
-pub struct LoadOptions {
-    /// Cache folder; `None` uses [`super::cache::default_cache_dir`].
-    pub cache_dir: Option<PathBuf>,
-    /// Skip the cache entirely (neither read nor write it).
-    pub no_cache: bool,
-    /// Show a progress bar while reading mesh files.
-    pub progress: bool,
-}
-
-/// Loads the dataset a manifest describes, from the binary cache when it is fresh.
-///
-/// The cache is keyed by the manifest and every file it names (path, size, modification
-/// time); any change rebuilds it. A cache that cannot be read or written costs a warning,
-/// never the load.
-///
-/// # Errors
-/// As [`Manifest::read`] and [`Manifest::load`].
-pub fn load_dataset(path: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError> {
-    let manifest = Manifest::read(path)?;
-    let cache_file = (!options.no_cache).then(|| {
-        let dir = options
-            .cache_dir
-            .clone()
-            .unwrap_or_else(super::cache::default_cache_dir);
-        super::cache::cache_path(&dir, &manifest)
-    });
-    let key = super::cache::cache_key(&manifest);
-    if let (Some(file), Some(key)) = (&cache_file, key) {
-        match super::cache::read_cache(file, key) {
-            Ok(Some(ds)) => {
-                tracing::debug!("dataset {} from cache {}", ds.name, file.display());
-                return Ok(ds);
-            }
-            Ok(None) => tracing::debug!("cache {} is stale or absent", file.display()),
-            Err(e) => tracing::warn!("ignoring unreadable dataset cache {}: {e}", file.display()),
-        }
-    }
-    let bar = options.progress.then(|| {
-        let bar = indicatif::ProgressBar::new((manifest.shapes.len() + 1) as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("loading {msg} [{bar:30}] {pos}/{len} files")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        bar.set_message(manifest.name());
-        bar
-    });
-    let ds = manifest.load(&|done, _| {
-        if let Some(b) = &bar {
-            b.set_position(done as u64);
-        }
-    })?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    if let (Some(file), Some(key)) = (&cache_file, key)
-        && let Err(e) = super::cache::write_cache(file, key, &ds)
-    {
-        tracing::warn!("could not write dataset cache {}: {e}", file.display());
-    }
-    Ok(ds)
-}
-
 /// Writes `dataset` as a manifest (`manifest.toml`, units mm), `neutral.obj`, one OBJ per
 /// shape under `shapes/` and, with a jaw rig, `jaw_weights.txt`. Returns the manifest path.
 ///
@@ -869,6 +805,8 @@ pub fn write_dataset(dataset: &Dataset, dir: &Path) -> Result<PathBuf, DatasetEr
 #[cfg(test)]
 mod tests {
     use super::*;
+    // The cached load (cache.rs) of the manifests these tests write.
+    use crate::dataset::{LoadOptions, load_dataset};
 
     const TRI: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4 3\n";
 

@@ -14,7 +14,8 @@ pub mod manifest;
 pub mod markers;
 pub mod scale_check;
 
-pub use manifest::{DatasetError, LoadOptions, Manifest, Units, load_dataset, write_dataset};
+pub use cache::{LoadOptions, load_dataset};
+pub use manifest::{DatasetError, Manifest, Units, write_dataset};
 pub use markers::{Marker, MarkerLayout};
 pub use scale_check::{ScaleMismatch, check_mesh_scale};
 

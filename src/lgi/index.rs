@@ -6,11 +6,12 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
+pub use super::jaw::JawSpace;
 use super::natural_neighbor::NaturalNeighborWeights;
 use super::point_cloud::build_point_cloud;
 use super::tetrahedra::{Simplices, TetStats, tetrahedralize};
 use super::{LgiError, LgiParams, grid::TetGrid};
-use crate::dataset::{Dataset, JawPose, MarkerLayout};
+use crate::dataset::{Dataset, MarkerLayout};
 
 /// Everything one marker needs per frame.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -323,17 +324,6 @@ impl From<StoredIndex> for LgiIndex {
             params: s.params,
         }
     }
-}
-
-/// The jaw data of an unskinned index (Cong et al. 2019 §6).
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct JawSpace {
-    /// The rig (pivot, axes, per-vertex weights).
-    pub rig: crate::dataset::JawRig,
-    /// Jaw pose of each shape, θ_n.
-    pub poses: Vec<JawPose>,
-    /// Per-frame jaw pose estimate from the bundles.
-    pub regression: super::jaw::JawRegression,
 }
 
 impl LgiIndex {

@@ -7,9 +7,19 @@
 use nalgebra::{Point3, Vector3};
 
 use super::LgiParams;
-use super::index::JawSpace;
 use crate::dataset::{Dataset, JawPose, JawRig};
 use crate::numeric::box_qp;
+
+/// The jaw data of an unskinned index (Cong et al. 2019 §6).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct JawSpace {
+    /// The rig (pivot, axes, per-vertex weights).
+    pub rig: JawRig,
+    /// Jaw pose of each shape, θ_n.
+    pub poses: Vec<JawPose>,
+    /// Per-frame jaw pose estimate from the bundles.
+    pub regression: JawRegression,
+}
 
 /// The jaw space of `dataset` when `params.use_jaw` is set, the dataset has a jaw rig and
 /// every shape has a jaw pose; `None` otherwise (the index then works on the shapes as
