@@ -58,7 +58,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     }
     match cmd {
         BenchCommand::Dataset { dataset, runs } => {
-            let cache = tempfile_dir()?;
+            let cache = super::bench_work_dir()?;
             let cold_opts = LoadOptions {
                 no_cache: true,
                 ..Default::default()
@@ -217,12 +217,6 @@ fn time_runs<E: Into<anyhow::Error>>(
     }
     times.sort_by(f64::total_cmp);
     Ok(times[times.len() / 2])
-}
-
-pub(super) fn tempfile_dir() -> anyhow::Result<PathBuf> {
-    let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    Ok(dir)
 }
 
 /// `helmcap bench rig`.

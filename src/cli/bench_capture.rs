@@ -52,7 +52,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let session = match &args.session {
         Some(s) => s.clone(),
         None => {
-            tmp = super::bench::tempfile_dir()?;
+            tmp = super::bench_work_dir()?;
             let rig = default_rig().context("the built-in rig")?;
             let performer = Performer::Actor(Box::new(actor.clone()));
             let names = performer.expression_names();

@@ -183,6 +183,16 @@ impl DatasetArgs {
     }
 }
 
+/// A working folder for a benchmark run (`$TMPDIR/helmcap-bench-<pid>`), created.
+///
+/// # Errors
+/// When the folder cannot be created.
+fn bench_work_dir() -> anyhow::Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("helmcap-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    Ok(dir)
+}
+
 /// The unit of mesh files given as input (`--units`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum MeshUnits {
