@@ -17,7 +17,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
 use super::horn::{HornError, horn_alignment};
-use crate::param_error::ParamError;
+use crate::param_error::{ParamError, non_negative, positive};
 
 /// Robust loss of [`robust_horn`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -72,15 +72,11 @@ impl RobustHornParams {
     /// # Errors
     /// [`ParamError`] naming the field.
     pub fn validate(&self) -> Result<(), ParamError> {
-        if !(self.min_sigma_mm.is_finite() && self.min_sigma_mm > 0.0) {
-            return Err(ParamError::new("min_sigma_mm", "must be positive"));
-        }
+        positive(self.min_sigma_mm, "min_sigma_mm")?;
         if self.max_iterations == 0 {
             return Err(ParamError::new("max_iterations", "must be at least 1"));
         }
-        if !(self.tolerance_mm.is_finite() && self.tolerance_mm >= 0.0) {
-            return Err(ParamError::new("tolerance_mm", "must be non-negative"));
-        }
+        non_negative(self.tolerance_mm, "tolerance_mm")?;
         Ok(())
     }
 }

@@ -134,7 +134,7 @@ impl VideoReader {
         // frames too, checked before the first frame is decoded.
         super::image::check_size(w as u32, h as u32, 3)
             .map_err(|e| video_err(path, format!("the video's frames: {e}")))?;
-        let most_frames = MAX_FRAME_NUMBER + 1;
+        let most_frames = MAX_FRAME_NUMBER as usize + 1;
         let declared = get(videoio::CAP_PROP_FRAME_COUNT);
         let frame_count = if declared.is_finite() && declared >= 1.0 {
             if declared > most_frames as f64 {
@@ -146,11 +146,11 @@ impl VideoReader {
                     ),
                 ));
             }
-            declared.round() as u64
+            declared.round() as usize
         } else {
             // The container does not say: count by decoding (once, on a second reader).
             let mut counter = open_capture(path)?;
-            let mut n = 0u64;
+            let mut n = 0usize;
             while counter.grab().unwrap_or(false) {
                 n += 1;
                 if n > most_frames {
@@ -167,12 +167,6 @@ impl VideoReader {
         if frame_count == 0 {
             return Err(video_err(path, "the video has no frames"));
         }
-        let frame_count = usize::try_from(frame_count).map_err(|_| {
-            video_err(
-                path,
-                "the video has more frames than this machine can index",
-            )
-        })?;
         Ok(Self {
             path: path.to_path_buf(),
             capture,

@@ -141,8 +141,9 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
              each merged take"
         );
     }
-    // The stages' memory: labeling settles, the solve forgets its preference every
-    // keyframe interval, gap-fill confidence reaches back 4 half-lives of 15 frames.
+    // The stages' memory: labeling restarts where each chunk's warm-up starts
+    // (--relabel-every), the solve forgets its preference every keyframe interval,
+    // gap-fill confidence reaches back 4 half-lives of 15 frames.
     let memory = 60usize.max(super::take::DEFAULT_SOLVE_KEYFRAMES);
     if args.overlap < memory {
         bail!(

@@ -246,8 +246,8 @@ pub fn run(
     let marker_count = layout.len();
 
     let mut handles: Vec<(Stage, JoinHandle<Result<(), PipelineError>>)> = Vec::new();
-    let mut sinks_in: Option<Receiver<Box<FrameResult>>> = None;
-    let spawned = (|| -> Result<(), PipelineError> {
+    // Starts every stage before the sinks; the channel into the sinks when all started.
+    let spawned = (|| -> Result<Receiver<Box<FrameResult>>, PipelineError> {
         // Source.
         {
             let stop = stop.clone();
@@ -377,8 +377,7 @@ pub fn run(
                 },
             )?);
         }
-        sinks_in = Some(tail);
-        Ok(())
+        Ok(tail)
     })();
 
     // Sinks run on their own thread too, so a slow sink shows as its own latency.
@@ -387,11 +386,10 @@ pub fn run(
             stop.store(true, Ordering::SeqCst);
             Err(e)
         }
-        Ok(()) => {
+        Ok(sinks_in) => {
             let errors = errors.clone();
             let counters = counters.clone();
             let stop = stop.clone();
-            let sinks_in = sinks_in.unwrap_or_else(|| bounded(0).1);
             let handle = spawn(Stage::Sinks, move || {
                 let r = sink_stage(
                     &mut sinks,

@@ -13,7 +13,7 @@
 //! (and covers the start, before any residual is known); residuals cut off by a gate
 //! below the truth bias the median low only until the next update widens it.
 
-use crate::param_error::ParamError;
+use crate::param_error::{ParamError, positive};
 
 /// Settings of the adaptive epipolar gate.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -54,12 +54,8 @@ impl EpipolarGateParams {
     /// # Errors
     /// [`ParamError`] naming the field (relative to `epipolar_gate`).
     pub fn validate(&self) -> Result<(), ParamError> {
-        if !(self.sigma_factor.is_finite() && self.sigma_factor > 0.0) {
-            return Err(ParamError::new("sigma_factor", "must be positive"));
-        }
-        if !(self.floor_px.is_finite() && self.floor_px > 0.0) {
-            return Err(ParamError::new("floor_px", "must be positive"));
-        }
+        positive(self.sigma_factor, "sigma_factor")?;
+        positive(self.floor_px, "floor_px")?;
         if !(self.ceiling_px.is_finite() && self.ceiling_px >= self.floor_px) {
             return Err(ParamError::new("ceiling_px", "must be at least floor_px"));
         }
