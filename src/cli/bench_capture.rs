@@ -10,7 +10,9 @@ use helmcap::capture::{Replay, ReplayParams, StereoFrame};
 use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::synth::{AnimationParams, Performer, SynthParams, animation, default_rig};
-use helmcap::track::{DetectParams, Detection, Labeler, MarkerDetector, detect_markers};
+use helmcap::track::{
+    DetectParams, Detection, Labeler, SearchWindows, StereoTracker, detect_markers,
+};
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -106,27 +108,26 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let mut frame_ms: Vec<Vec<(f64, bool)>> = Vec::new();
     let mut acquiring_ms: Vec<f64> = Vec::new();
     let mut labeled = 0;
+    // Per camera and frame searched in windows: the share of the image searched.
+    let mut searched: Vec<f64> = Vec::new();
     let load_before = load_average();
     for _ in 0..args.runs.max(1) {
-        let mut labeler = new_labeler()?;
-        let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
+        let mut tracker = StereoTracker::new(new_labeler()?, detect_params.clone());
         let cpu = helmcap::solve::benchmark::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
         let mut times = Vec::with_capacity(frames.len());
         for f in &frames {
+            let windows = tracker.labeler().predicted_windows();
+            if !windows[0].is_empty() {
+                for (c, w) in windows.iter().enumerate() {
+                    let (iw, ih) = (f.images[c].width as usize, f.images[c].height as usize);
+                    let area = SearchWindows::new(w, (0, 0, iw, ih)).area();
+                    searched.push(area as f64 / (iw * ih) as f64);
+                }
+            }
             let tf = Instant::now();
-            let rois = labeler.predicted_rois();
-            let params = rois.map(|roi| DetectParams {
-                roi,
-                ..detect_params.clone()
-            });
-            let [d0, d1] = &mut detectors;
-            let (a, b) = rayon::join(
-                || d0.detect(&f.images[0], &params[0]),
-                || d1.detect(&f.images[1], &params[1]),
-            );
-            let out = labeler.process(f.index, [&a, &b]);
+            let out = tracker.track(f.index, &f.images).labeled;
             labeled += out.stats.labeled;
             let ms = 1e3 * tf.elapsed().as_secs_f64();
             if out.stats.acquiring {
@@ -186,6 +187,14 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
                 .get(acquiring_ms.len() / 2)
                 .copied()
                 .unwrap_or(f64::NAN)
+        );
+    }
+    if !searched.is_empty() {
+        println!(
+            "search windows: {:.0} % of the frames searched in windows, covering {:.1} % of the \
+             image on average",
+            100.0 * searched.len() as f64 / (2 * frames.len() * args.runs.max(1)) as f64,
+            100.0 * searched.iter().sum::<f64>() / searched.len() as f64
         );
     }
     if let Some(m) = cpu_ms.get(cpu_ms.len() / 2) {

@@ -21,7 +21,7 @@ use crate::bundles::FrameBundles;
 use crate::capture::{CaptureError, FrameSource};
 use crate::dataset::MarkerLayout;
 use crate::solve::Solver;
-use crate::track::{DetectParams, Labeler, MarkerDetector};
+use crate::track::{Labeler, StereoTracker, TrackedFrame};
 
 /// Counters the source thread shares with the sink thread.
 #[derive(Debug, Default)]
@@ -270,8 +270,7 @@ pub fn run(
         }
         // Track.
         let fresh = label_restarts.map(|_| labeler.clone());
-        let mut labeler = labeler;
-        let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
+        let mut tracker = StereoTracker::new(labeler, detect);
         handles.push(spawn_stage(
             Stage::Track,
             track_in,
@@ -281,9 +280,9 @@ pub fn run(
                 if let (Some(r), Some(fresh)) = (label_restarts, &fresh)
                     && r.restarts_at(f.index)
                 {
-                    labeler = fresh.clone();
+                    tracker.restart(fresh.clone());
                 }
-                track_frame(f, &mut labeler, &mut detectors, &detect);
+                track_frame(f, &mut tracker);
                 Ok(true)
             },
         )?);
@@ -486,27 +485,14 @@ fn source_stage(
     }
 }
 
-/// Detection in both cameras (in parallel, inside the labeler's predicted regions) and
+/// Detection in both cameras (in parallel, where the labeler expects its markers) and
 /// labeling.
-fn track_frame(
-    f: &mut FrameResult,
-    labeler: &mut Labeler,
-    detectors: &mut [MarkerDetector; 2],
-    detect: &DetectParams,
-) {
-    let rois = labeler.predicted_rois();
-    let params = |c: usize| DetectParams {
-        roi: rois[c].or(detect.roi),
-        ..detect.clone()
-    };
-    let (p0, p1) = (params(0), params(1));
+fn track_frame(f: &mut FrameResult, tracker: &mut StereoTracker) {
     let images = f.images.clone();
-    let [det0, det1] = detectors;
-    let (d0, d1) = rayon::join(
-        || det0.detect(&images[0], &p0),
-        || det1.detect(&images[1], &p1),
-    );
-    let labeled = labeler.process(f.index, [&d0, &d1]);
+    let TrackedFrame {
+        labeled,
+        detections,
+    } = tracker.track(f.index, &images);
     for (r, m) in f.markers.iter_mut().zip(&labeled.markers) {
         if let Some(m) = m {
             *r = MarkerResult {
@@ -528,7 +514,7 @@ fn track_frame(
         rejected: s.rejected,
         acquiring: s.acquiring,
     };
-    f.detections = [d0, d1];
+    f.detections = detections;
 }
 
 /// Head pose and head-frame bundles; bundle accuracy against ground truth.

@@ -19,6 +19,7 @@
 
 use nalgebra::Point2;
 
+use super::search_windows::{Rect, SearchWindows};
 use crate::capture::GrayImage;
 use crate::param_error::{self, ParamError};
 
@@ -282,7 +283,40 @@ impl MarkerDetector {
 
     /// Finds the dots in `image` (see the module docs).
     pub fn detect(&mut self, image: &GrayImage, params: &DetectParams) -> Vec<Detection> {
-        self.detect_into(image, params, None)
+        self.detect_into(image, params, None, None)
+    }
+
+    /// Finds the dots inside the union of `windows` (rectangles `(x0, y0, x1, y1)`, end
+    /// exclusive, clipped to the image and to [`DetectParams::roi`]): candidate pixels are
+    /// found only there, so a dot is found whole when its window holds it whole. While
+    /// tracking, one window around each predicted marker leaves out the skin between the
+    /// markers, and with it most of the clutter and of the work. The local means still
+    /// read the image around the windows, so a dot well inside a window gets the same
+    /// candidate pixels, and the same detection, as in [`MarkerDetector::detect`].
+    pub fn detect_in_windows(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        windows: &[Rect],
+    ) -> Vec<Detection> {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let clip = params.roi.map_or((0, 0, w, h), |(a, b, c, d)| {
+            (
+                a as usize,
+                b as usize,
+                (c as usize).min(w),
+                (d as usize).min(h),
+            )
+        });
+        let union = SearchWindows::new(windows, clip);
+        let Some((x0, y0, x1, y1)) = union.bounds() else {
+            return Vec::new();
+        };
+        let bounded = DetectParams {
+            roi: Some((x0 as u32, y0 as u32, x1 as u32, y1 as u32)),
+            ..params.clone()
+        };
+        self.detect_into(image, &bounded, Some(&union), None)
     }
 
     /// [`MarkerDetector::detect`], and the blobs of candidate pixels that were not taken
@@ -293,7 +327,7 @@ impl MarkerDetector {
         params: &DetectParams,
     ) -> (Vec<Detection>, Vec<Rejection>) {
         let mut rejected = Vec::new();
-        let found = self.detect_into(image, params, Some(&mut rejected));
+        let found = self.detect_into(image, params, None, Some(&mut rejected));
         (found, rejected)
     }
 
@@ -301,6 +335,7 @@ impl MarkerDetector {
         &mut self,
         image: &GrayImage,
         params: &DetectParams,
+        windows: Option<&SearchWindows>,
         rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (w, h) = (image.width as usize, image.height as usize);
@@ -321,10 +356,10 @@ impl MarkerDetector {
         let roi = (x0, y0, x1, y1);
         let scales = params.window_scales();
         let [small] = scales[..] else {
-            return self.detect_two_scales(image, params, &scales, roi, rejected);
+            return self.detect_two_scales(image, params, &scales, roi, windows, rejected);
         };
         let scaled = params.scaled_to_dot_sizes();
-        self.threshold(image, &scaled, small, roi);
+        self.threshold(image, &scaled, small, roi, windows);
         let mut out = Vec::new();
         self.components(image, &scaled, roi, &mut out, rejected);
         out
@@ -343,6 +378,7 @@ impl MarkerDetector {
         params: &DetectParams,
         scales: &[usize],
         roi: (usize, usize, usize, usize),
+        windows: Option<&SearchWindows>,
         rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (small, large) = (scales[0], scales[scales.len() - 1]);
@@ -356,10 +392,10 @@ impl MarkerDetector {
             ..params.clone()
         };
         let mut fine = Vec::new();
-        self.threshold(image, &fine_params, small, roi);
+        self.threshold(image, &fine_params, small, roi, windows);
         self.components(image, &fine_params, roi, &mut fine, rejected);
         let mut coarse = Vec::new();
-        self.threshold(image, &scaled, large, roi);
+        self.threshold(image, &scaled, large, roi, windows);
         self.components(image, &scaled, roi, &mut coarse, None);
         let limit = small_scale_limit_px(small);
         let inside = |c: &Detection, f: &Detection| {
@@ -454,10 +490,11 @@ impl MarkerDetector {
     }
 
     /// Fills `mask` (the ROI `(x0, y0, x1, y1)`, row-major) with the local contrast of
-    /// candidate pixels, saturated at 255, and `row_has_candidate`. Box sums over the ROI
-    /// grown by `r` (clamped to the image): column sums over the window's rows, kept
-    /// incrementally from row to row, and a prefix sum of them along each row. Away from
-    /// the image's edges the window has a fixed area `A` and a pixel is a candidate when
+    /// candidate pixels, saturated at 255, and `row_has_candidate`; with `windows`, only
+    /// inside them (0 elsewhere). Box sums over the ROI grown by `r` (clamped to the
+    /// image): column sums over the window's rows, kept incrementally from row to row, and
+    /// a prefix sum of them along each span of a row (grown by `r`). Away from the image's
+    /// edges the window has a fixed area `A` and a pixel is a candidate when
     /// `S ≥ A·(I + c)` (dark) or `A·I ≥ S + A·c` (bright), a test the compiler vectorizes;
     /// the contrast `⌊|S − A·I| / A⌋` is computed for candidates only.
     fn threshold(
@@ -466,6 +503,7 @@ impl MarkerDetector {
         params: &DetectParams,
         r: usize,
         (x0, y0, x1, y1): (usize, usize, usize, usize),
+        windows: Option<&SearchWindows>,
     ) {
         let (w, h) = (image.width as usize, image.height as usize);
         let gx0 = x0.saturating_sub(r);
@@ -486,6 +524,7 @@ impl MarkerDetector {
         // Interior columns: the window lies inside [gx0, gx1).
         let ia = x0.max(gx0 + r).min(x1);
         let ib = x1.min(gx1.saturating_sub(r)).max(ia);
+        let whole_row = [(x0, x1)];
         let (mut ya_prev, mut yb_prev) = (gy0, gy0);
         for y in y0..y1 {
             let ya = y.saturating_sub(r).max(gy0);
@@ -505,72 +544,90 @@ impl MarkerDetector {
                     .for_each(|(s, &v)| *s = s.wrapping_sub(u16::from(v)));
             }
             (ya_prev, yb_prev) = (ya, yb);
-            let mut acc = 0u32;
-            for (p, &s) in self.prefix[1..].iter_mut().zip(&self.col) {
-                acc += u32::from(s);
-                *p = acc;
-            }
-            let prefix = &self.prefix;
+            let spans = windows.map_or(&whole_row[..], |win| win.row(y));
             let rows = (yb - ya) as u32;
             let img_row = &image.data[y * w + x0..y * w + x1];
             let mask_row = &mut self.mask[(y - y0) * bw..(y - y0 + 1) * bw];
-            // Contrast of pixel x (window clamped to [gx0, gx1)), 0 below the threshold.
-            let level = |x: usize, v: u8| -> u8 {
-                let xa = x.saturating_sub(r).max(gx0) - gx0;
-                let xb = (x + r + 1).min(gx1) - gx0;
-                let area = (xb - xa) as u32 * rows;
-                let sum = prefix[xb] - prefix[xa];
-                let v = u32::from(v) * area;
-                let diff = if params.bright {
-                    v.checked_sub(sum)
-                } else {
-                    sum.checked_sub(v)
-                };
-                match diff {
-                    Some(d) if d >= c * area => (d / area).clamp(1, 255) as u8,
-                    _ => 0,
-                }
-            };
             let mut any = 0u8;
-            for x in (x0..ia).chain(ib..x1) {
-                let m = level(x, img_row[x - x0]);
-                mask_row[x - x0] = m;
-                any |= m;
-            }
-            if ia < ib {
-                let n = ib - ia;
-                let area = (2 * r + 1) as u32 * rows;
-                let lo = &prefix[ia - r - gx0..ia - r - gx0 + n];
-                let hi = &prefix[ia + r + 1 - gx0..ia + r + 1 - gx0 + n];
-                let vals = &img_row[ia - x0..ib - x0];
-                let flags = &mut mask_row[ia - x0..ib - x0];
-                let mut hit = 0u8;
-                if params.bright {
-                    for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
-                        *f = u8::from(area * u32::from(v) >= s1 - s0 + area * c);
-                        hit |= *f;
-                    }
-                } else {
-                    for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
-                        *f = u8::from(s1 - s0 >= area * (u32::from(v) + c));
-                        hit |= *f;
-                    }
+            for &(sa, sb) in spans {
+                let (sa, sb) = (sa.max(x0), sb.min(x1));
+                if sa >= sb {
+                    continue;
                 }
-                if hit != 0 {
-                    // Candidates are sparse: skip zero runs 8 pixels at a time.
-                    for k in (ia..ib).step_by(8) {
-                        let ke = (k + 8).min(ib);
-                        if all_zero(&mask_row[k - x0..ke - x0]) {
-                            continue;
+                // Prefix sums of the column sums over the span grown by r: `prefix[k]` is
+                // the sum of columns `pa..pa + k`.
+                let pa = sa.saturating_sub(r).max(gx0);
+                let pb = (sb + r + 1).min(gx1);
+                let mut acc = 0u32;
+                for (p, &s) in self.prefix[1..=pb - pa]
+                    .iter_mut()
+                    .zip(&self.col[pa - gx0..pb - gx0])
+                {
+                    acc += u32::from(s);
+                    *p = acc;
+                }
+                let prefix = &self.prefix;
+                // Contrast of pixel x (window clamped to [gx0, gx1)), 0 below the
+                // threshold.
+                let level = |x: usize, v: u8| -> u8 {
+                    let xa = x.saturating_sub(r).max(gx0) - pa;
+                    let xb = (x + r + 1).min(gx1) - pa;
+                    let area = (xb - xa) as u32 * rows;
+                    let sum = prefix[xb] - prefix[xa];
+                    let v = u32::from(v) * area;
+                    let diff = if params.bright {
+                        v.checked_sub(sum)
+                    } else {
+                        sum.checked_sub(v)
+                    };
+                    match diff {
+                        Some(d) if d >= c * area => (d / area).clamp(1, 255) as u8,
+                        _ => 0,
+                    }
+                };
+                // The span's interior part [i0, i1), and its edge parts either side.
+                let i0 = sa.max(ia).min(sb);
+                let i1 = sb.min(ib).max(i0);
+                for x in (sa..i0).chain(i1..sb) {
+                    let m = level(x, img_row[x - x0]);
+                    mask_row[x - x0] = m;
+                    any |= m;
+                }
+                if i0 < i1 {
+                    let n = i1 - i0;
+                    let area = (2 * r + 1) as u32 * rows;
+                    let lo = &prefix[i0 - r - pa..i0 - r - pa + n];
+                    let hi = &prefix[i0 + r + 1 - pa..i0 + r + 1 - pa + n];
+                    let vals = &img_row[i0 - x0..i1 - x0];
+                    let flags = &mut mask_row[i0 - x0..i1 - x0];
+                    let mut hit = 0u8;
+                    if params.bright {
+                        for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
+                            *f = u8::from(area * u32::from(v) >= s1 - s0 + area * c);
+                            hit |= *f;
                         }
-                        for x in k..ke {
-                            if mask_row[x - x0] != 0 {
-                                mask_row[x - x0] = level(x, img_row[x - x0]);
+                    } else {
+                        for (((f, &v), &s1), &s0) in flags.iter_mut().zip(vals).zip(hi).zip(lo) {
+                            *f = u8::from(s1 - s0 >= area * (u32::from(v) + c));
+                            hit |= *f;
+                        }
+                    }
+                    if hit != 0 {
+                        // Candidates are sparse: skip zero runs 8 pixels at a time.
+                        for k in (i0..i1).step_by(8) {
+                            let ke = (k + 8).min(i1);
+                            if all_zero(&mask_row[k - x0..ke - x0]) {
+                                continue;
+                            }
+                            for x in k..ke {
+                                if mask_row[x - x0] != 0 {
+                                    mask_row[x - x0] = level(x, img_row[x - x0]);
+                                }
                             }
                         }
                     }
+                    any |= hit;
                 }
-                any |= hit;
             }
             self.row_has_candidate[y - y0] = any != 0;
         }
@@ -1033,7 +1090,7 @@ mod tests {
                     min_contrast_dn: 4,
                     ..Default::default()
                 };
-                detector.threshold(&img, &params, r as usize, roi);
+                detector.threshold(&img, &params, r as usize, roi, None);
                 let naive = naive_mask(&img, &params, roi);
                 assert_eq!(detector.mask, naive, "bright {bright}, roi {roi:?}, r {r}");
                 assert!(naive.iter().any(|&m| m != 0));
@@ -1049,6 +1106,37 @@ mod tests {
         let fresh = detect_markers(&img, &params);
         assert_eq!(detector.detect(&img, &params), fresh);
         assert!(!fresh.is_empty());
+    }
+
+    #[test]
+    fn windows_give_the_same_dots_as_the_whole_image() {
+        let dots = [(30.3, 40.7, 2.5), (100.55, 60.2, 3.0), (170.8, 90.45, 2.2)];
+        let img = image_with_dots(&dots);
+        // Two window scales (the default dot range) and one.
+        for params in [
+            DetectParams::default(),
+            DetectParams {
+                max_dot_px: 12.0,
+                ..Default::default()
+            },
+        ] {
+            let mut detector = MarkerDetector::new();
+            let whole = detector.detect(&img, &params);
+            assert_eq!(whole.len(), 3, "{whole:?}");
+            let all = [(0, 0, img.width, img.height)];
+            assert_eq!(detector.detect_in_windows(&img, &params, &all), whole);
+            // A window around each of the first two dots (overlapping ones for the first):
+            // those two, measured exactly as in the whole image; the third is not looked at.
+            let windows = [(20, 30, 41, 51), (25, 35, 45, 48), (90, 50, 111, 71)];
+            let found = detector.detect_in_windows(&img, &params, &windows);
+            assert_eq!(found, whole[..2], "{found:?}");
+            // No window inside the image: nothing.
+            assert!(
+                detector
+                    .detect_in_windows(&img, &params, &[(5000, 5000, 5010, 5010)])
+                    .is_empty()
+            );
+        }
     }
 
     #[test]

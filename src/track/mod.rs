@@ -8,6 +8,8 @@ pub mod detect;
 pub mod gate;
 pub mod label;
 pub mod profile;
+pub mod search_windows;
+pub mod tracker;
 
 pub use detect::{
     DetectParams, Detection, MarkerDetector, RejectReason, Rejection, detect_markers,
@@ -15,3 +17,5 @@ pub use detect::{
 pub use gate::{EpipolarGate, EpipolarGateParams};
 pub use label::{LabelError, LabelParams, LabelStats, LabeledFrame, LabeledMarker, Labeler};
 pub use profile::{CaptureProfile, Polarity, ProfileError};
+pub use search_windows::{Rect, SearchWindows};
+pub use tracker::{StereoTracker, TrackedFrame};

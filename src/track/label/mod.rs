@@ -57,10 +57,16 @@ use rand::seq::SliceRandom;
 
 use super::Detection;
 use super::gate::{EpipolarGate, EpipolarGateParams};
+use super::search_windows::Rect;
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
 use crate::param_error::{ParamError, non_negative, positive};
 use crate::stereo::{Bundle, PairParams};
+
+/// A frame that labels fewer than this share of the markers of the frame before makes the
+/// next frame search the whole region of interest instead of the windows (see
+/// [`Labeler::predicted_windows`]).
+pub const WINDOWS_KEEP_SHARE: f64 = 0.8;
 
 /// Labeling settings.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -136,6 +142,16 @@ pub struct LabelParams {
     /// Margin added around the predicted markers for the detector's region of interest,
     /// pixels. Default 40.
     pub roi_margin_px: f64,
+    /// While tracking, detect only in one window around each marker's predicted pixel
+    /// (see [`Labeler::predicted_windows`]) instead of the whole region of interest: the
+    /// skin between the markers, with its freckles, moles and hair, is not searched.
+    /// After a frame that labels markedly fewer markers than the one before (a jolt of the
+    /// helmet, a blurred frame), the next frame searches the whole region of interest.
+    /// Default true.
+    pub search_windows: bool,
+    /// Margin of a search window beyond the marker's gate and the largest dot it may be,
+    /// pixels. Default 6.
+    pub window_margin_px: f64,
     /// Painted dot diameter, mm (a capture profile sets it from its `dot_diameter_mm`).
     /// Default 2.4.
     #[serde(skip_serializing)]
@@ -193,6 +209,8 @@ impl Default for LabelParams {
             max_pose_rms_mm: 2.5,
             max_frame_gap: 5,
             roi_margin_px: 40.0,
+            search_windows: true,
+            window_margin_px: 6.0,
             dot_diameter_mm: 2.4,
             dot_size_ratio: (0.5, 1.8),
             first_sighting_size_ratio: (0.7, 1.35),
@@ -283,6 +301,7 @@ impl LabelParams {
             return Err(err("max_frame_gap", "must be at least 1"));
         }
         non_negative(self.roi_margin_px, "roi_margin_px")?;
+        non_negative(self.window_margin_px, "window_margin_px")?;
         if !(self.dot_diameter_mm.is_finite() && self.dot_diameter_mm > 0.0) {
             return Err(err("dot_diameter_mm", "must be positive"));
         }
@@ -398,6 +417,10 @@ pub struct Labeler {
     last_frame: Option<usize>,
     lost_count: usize,
     rois: [Option<(u32, u32, u32, u32)>; 2],
+    /// Per camera: the search windows of the next frame (empty: search the ROI).
+    windows: [Vec<Rect>; 2],
+    /// Markers labeled in the last processed frame.
+    last_labeled: usize,
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
@@ -531,6 +554,8 @@ impl Labeler {
             last_frame: None,
             lost_count: 0,
             rois: [None, None],
+            windows: [Vec::new(), Vec::new()],
+            last_labeled: 0,
             gate: EpipolarGate::new(EpipolarGateParams {
                 floor_px: params.max_reprojection_px,
                 ceiling_px: params
@@ -588,6 +613,7 @@ impl Labeler {
         self.last_frame = None;
         self.lost_count = 0;
         self.rois = [None, None];
+        self.windows = [Vec::new(), Vec::new()];
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -595,6 +621,19 @@ impl Labeler {
     /// `DetectParams::roi`.)
     pub fn predicted_rois(&self) -> [Option<(u32, u32, u32, u32)>; 2] {
         self.rois
+    }
+
+    /// Search windows `(x0, y0, x1, y1)` (end exclusive) per camera around each marker's
+    /// predicted pixel next frame, for the detector's
+    /// [`MarkerDetector::detect_in_windows`](crate::track::MarkerDetector::detect_in_windows):
+    /// each holds the marker's gate, grown by half the largest blob its dot may make there
+    /// through the lens and [`LabelParams::window_margin_px`], so that any detection the
+    /// labeling could accept for it is found whole. Empty while acquiring, when
+    /// [`LabelParams::search_windows`] is off, and after a frame that labeled under
+    /// [`WINDOWS_KEEP_SHARE`] of the markers of the frame before (then search
+    /// [`Labeler::predicted_rois`]).
+    pub fn predicted_windows(&self) -> [&[Rect]; 2] {
+        [&self.windows[0], &self.windows[1]]
     }
 
     /// Labels one stereo frame's detections (cam0, cam1). Never panics on any input.
@@ -699,11 +738,53 @@ impl Labeler {
             self.pose = Some(pose);
             self.last_frame = Some(frame);
             self.rois = self.compute_rois();
+            let steady = stats.labeled as f64 >= WINDOWS_KEEP_SHARE * self.last_labeled as f64;
+            self.windows = if self.params.search_windows && steady {
+                self.compute_windows()
+            } else {
+                [Vec::new(), Vec::new()]
+            };
         }
+        self.last_labeled = stats.labeled;
         LabeledFrame {
             markers: out,
             stats,
         }
+    }
+
+    /// One search window per marker and camera around its predicted pixel next frame (see
+    /// [`Labeler::predicted_windows`]).
+    fn compute_windows(&self) -> [Vec<Rect>; 2] {
+        let Some(pose) = self.predicted_pose(1) else {
+            return [Vec::new(), Vec::new()];
+        };
+        let preds = self.predictions(&pose, 1, self.params.pose_pass_extra_gate_px);
+        let hi = self
+            .params
+            .dot_size_ratio
+            .1
+            .max(self.params.first_sighting_size_ratio.1);
+        [0, 1].map(|c| {
+            let cam = if c == 0 {
+                &self.rig.cam0
+            } else {
+                &self.rig.cam1
+            };
+            let (w, h) = (f64::from(cam.width_px), f64::from(cam.height_px));
+            preds
+                .iter()
+                .filter_map(|pr| {
+                    let q = pr.pixels[c]?;
+                    let largest_dot = self.largest_dot_px(&pr.point, c, hi)? + pr.motion_px[c];
+                    let g = pr.gate_px + 0.5 * largest_dot + self.params.window_margin_px;
+                    let x0 = (q.x - g).floor().clamp(0.0, w) as u32;
+                    let y0 = (q.y - g).floor().clamp(0.0, h) as u32;
+                    let x1 = ((q.x + g).ceil() + 1.0).clamp(0.0, w) as u32;
+                    let y1 = ((q.y + g).ceil() + 1.0).clamp(0.0, h) as u32;
+                    (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
+                })
+                .collect()
+        })
     }
 
     /// Bounding boxes of the next frame's predicted marker pixels, grown by the margin.

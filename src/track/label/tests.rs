@@ -501,3 +501,72 @@ fn rejects_bad_construction() {
         Err(LabelError::Rig(_))
     ));
 }
+
+#[test]
+fn search_windows_hold_every_label_and_give_way_after_a_drop() {
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(5);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(105);
+    let mut windowed_frames = Vec::new();
+    for f in 0..40 {
+        let t = f as f64;
+        let angles = Vector3::new(0.004 * t, -0.003 * t, 0.002 * t);
+        let shift = Vector3::new(0.15 * t, -0.1 * t, 0.05 * t);
+        let pose = pose_facing(&rig, 230.0, angles, shift);
+        // Frame 20: most markers hidden at once (a hand in front of the face).
+        let hidden: Vec<usize> = if f == 20 {
+            (0..70).collect()
+        } else {
+            Vec::new()
+        };
+        let obs = observe(&rig, &pose, &pts, &hidden, 0.15, 5, &mut rng);
+        let windows: [Vec<Rect>; 2] = lab.predicted_windows().map(<[Rect]>::to_vec);
+        let out = lab.process(f, [&obs[0].0, &obs[1].0]);
+        if windows[0].is_empty() {
+            continue;
+        }
+        windowed_frames.push(f);
+        // Every label's blob lies whole inside a window of its camera.
+        for m in out.markers.iter().flatten() {
+            for c in 0..2 {
+                let d = &obs[c].0[m.detections[c]];
+                let r = 0.5 * d.diameter_px;
+                let (x, y) = (d.centre_px.x, d.centre_px.y);
+                assert!(
+                    windows[c].iter().any(|&(x0, y0, x1, y1)| {
+                        x - r >= f64::from(x0)
+                            && y - r >= f64::from(y0)
+                            && x + r <= f64::from(x1)
+                            && y + r <= f64::from(y1)
+                    }),
+                    "frame {f}, camera {c}: label at ({x:.1}, {y:.1}) outside the windows"
+                );
+            }
+        }
+    }
+    // Windows from the second frame on, except right after the drop (the whole region
+    // of interest is searched then), and again after it.
+    assert!(windowed_frames.contains(&1) && windowed_frames.contains(&20));
+    assert!(!windowed_frames.contains(&21), "{windowed_frames:?}");
+    assert!(windowed_frames.contains(&22), "{windowed_frames:?}");
+    assert_eq!(windowed_frames.len(), 38, "{windowed_frames:?}");
+    // Switched off, there are none.
+    let mut off = Labeler::new(
+        rig.clone(),
+        &layout,
+        pts.clone(),
+        LabelParams {
+            search_windows: false,
+            ..LabelParams::default()
+        },
+    )
+    .unwrap();
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    for f in 0..3 {
+        let obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+        off.process(f, [&obs[0].0, &obs[1].0]);
+        assert!(off.predicted_windows().iter().all(|w| w.is_empty()));
+        assert!(off.predicted_rois().iter().all(Option::is_some));
+    }
+}

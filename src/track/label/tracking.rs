@@ -55,6 +55,20 @@ impl Labeler {
         })
     }
 
+    /// The major axis, pixels, of the largest blob a dot at `point` (cam0 frame) may make
+    /// in camera `c` at the size ratio `hi` (its largest magnification through the lens,
+    /// as in [`Labeler::dot_sized`]); None when the point does not project.
+    pub(super) fn largest_dot_px(&self, point: &Point3<f64>, c: usize, hi: f64) -> Option<f64> {
+        let (cam, p) = if c == 0 {
+            (&self.rig.cam0, point.coords)
+        } else {
+            (&self.rig.cam1, (self.rig.cam1_from_cam0 * point).coords)
+        };
+        let (_, j) = cam.project_with_jacobian(&p)?;
+        let (s1, _) = singular_values(&j);
+        Some(hi * self.params.dot_diameter_mm * s1 + 2.0)
+    }
+
     /// Constant-velocity prediction of the head pose `steps` frames after the last one.
     pub(super) fn predicted_pose(&self, steps: usize) -> Option<Isometry3<f64>> {
         let pose = self.pose?;
