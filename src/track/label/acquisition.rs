@@ -111,12 +111,18 @@ impl Labeler {
         let strong = 0.7 * n.min(m) as f64;
         let first = search.iterations;
         let last = (first + p.acquire_iterations_per_frame).min(p.acquire_iterations);
+        // Hypotheses aligned and scored this frame: the work of an attempt, whatever the
+        // number of candidate correspondences a triple brings.
+        let mut hypotheses = 0usize;
         for iteration in first..last {
-            search.iterations = iteration + 1;
             // Enough evidence: a strong hypothesis and a good number of samples after it.
             if iteration >= 60 && top.first().is_some_and(|x| x.0 >= strong) {
                 break;
             }
+            if hypotheses >= p.acquire_hypotheses_per_frame {
+                break;
+            }
+            search.iterations = iteration + 1;
             // A well-spread triple of observed points.
             let mut triple = None;
             for _ in 0..30 {
@@ -164,11 +170,17 @@ impl Labeler {
                     if !(z0..=z1).contains(&centre.z) {
                         continue;
                     }
+                    hypotheses += 1;
                     let score = self.score(&t, &grid);
                     self.keep_top(&mut top, score, t);
                 }
             }
         }
+        tracing::trace!(
+            hypotheses,
+            iterations = search.iterations - first,
+            "acquisition samples"
+        );
         // Refine the leading distinct hypotheses by ICP, then compare.
         let mut refined: Vec<(f64, usize, Isometry3<f64>)> = top
             .iter()

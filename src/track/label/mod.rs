@@ -179,6 +179,11 @@ pub struct LabelParams {
     /// on over the next frames with the hypotheses found so far (the stream never waits for
     /// it). Default 150.
     pub acquire_iterations_per_frame: usize,
+    /// Acquisition: at most this many hypotheses (a triple's candidate correspondences,
+    /// each aligned and scored) per frame. This, not the number of triples, is what an
+    /// attempt costs: on skin with hundreds of blobs a triple brings hundreds of
+    /// candidates. The search goes on next frame. Default 12000.
+    pub acquire_hypotheses_per_frame: usize,
 }
 
 impl Default for LabelParams {
@@ -216,6 +221,7 @@ impl Default for LabelParams {
             first_sighting_size_ratio: (0.7, 1.35),
             acquire_max_detections: 400,
             acquire_iterations_per_frame: 150,
+            acquire_hypotheses_per_frame: 12_000,
         }
     }
 }
@@ -321,6 +327,9 @@ impl LabelParams {
         }
         if self.acquire_iterations_per_frame == 0 {
             return Err(err("acquire_iterations_per_frame", "must be at least 1"));
+        }
+        if self.acquire_hypotheses_per_frame == 0 {
+            return Err(err("acquire_hypotheses_per_frame", "must be at least 1"));
         }
         Ok(())
     }
