@@ -106,11 +106,11 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let mut frame_ms: Vec<Vec<(f64, bool)>> = Vec::new();
     let mut acquiring_ms: Vec<f64> = Vec::new();
     let mut labeled = 0;
-    let load_before = load_average();
+    let load_before = helmcap::bench::host::load_average();
     for _ in 0..args.runs.max(1) {
         let mut labeler = new_labeler()?;
         let mut detectors = [MarkerDetector::new(), MarkerDetector::new()];
-        let cpu = helmcap::solve::benchmark::process_cpu_seconds();
+        let cpu = helmcap::bench::host::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
         let mut times = Vec::with_capacity(frames.len());
@@ -136,11 +136,11 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         }
         frame_ms.push(times);
         rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
-        if let (Some(a), Some(b)) = (cpu, helmcap::solve::benchmark::process_cpu_seconds()) {
+        if let (Some(a), Some(b)) = (cpu, helmcap::bench::host::process_cpu_seconds()) {
             cpu_ms.push(1e3 * (b - a) / frames.len() as f64);
         }
     }
-    let load_after = load_average();
+    let load_after = helmcap::bench::host::load_average();
     rates.sort_by(f64::total_cmp);
     cpu_ms.sort_by(f64::total_cmp);
     let (w, h) = (rig.cam0.width_px, rig.cam0.height_px);
@@ -369,12 +369,6 @@ fn acquisition_with_clutter(
         labeled.iter().sum::<usize>() as f64 / labeled.len().max(1) as f64
     );
     Ok(())
-}
-
-/// The 1-minute load average from /proc/loadavg (Linux); `None` elsewhere.
-fn load_average() -> Option<String> {
-    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
-    text.split_whitespace().next().map(str::to_owned)
 }
 
 /// The marker whose true projection is nearest `px`, within 4 px.

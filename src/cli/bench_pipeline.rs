@@ -95,14 +95,6 @@ struct RssSink {
     seen: usize,
 }
 
-/// Resident set size of this process, kB (`VmRSS` of /proc/self/status).
-fn rss_kb() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    text.lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-}
-
 impl Sink for RssSink {
     fn name(&self) -> &str {
         "rss"
@@ -112,7 +104,8 @@ impl Sink for RssSink {
     }
     fn write(&mut self, _frame: &FrameResult) -> Result<(), SinkError> {
         if self.seen.is_multiple_of(self.every)
-            && let (Some(kb), Ok(mut s)) = (rss_kb(), self.samples.lock())
+            && let (Some(kb), Ok(mut s)) =
+                (helmcap::bench::host::resident_kib(), self.samples.lock())
         {
             s.push((self.seen, kb));
         }

@@ -217,7 +217,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
     let timings = [("detect", 3.0), ("triangulate", 0.4), ("solve", 2.0)];
     let (mut log_ms, mut wall_ms, mut cpu_ms, mut mb) = (vec![], vec![], vec![], vec![]);
     for _ in 0..a.runs.max(1) {
-        let cpu0 = helmcap::solve::benchmark::process_cpu_seconds();
+        let cpu0 = helmcap::bench::host::process_cpu_seconds();
         let t0 = Instant::now();
         let mut sink = RerunSink::new(RerunTarget::File(path.clone()), params.clone())?;
         sink.begin_session(&session)?;
@@ -264,7 +264,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
         let frames = a.frames.max(1) as f64;
         wall_ms.push(t0.elapsed().as_secs_f64() * 1e3 / frames);
         log_ms.push(in_log * 1e3 / frames);
-        if let (Some(c0), Some(c1)) = (cpu0, helmcap::solve::benchmark::process_cpu_seconds()) {
+        if let (Some(c0), Some(c1)) = (cpu0, helmcap::bench::host::process_cpu_seconds()) {
             cpu_ms.push((c1 - c0) * 1e3 / frames);
         }
         let size = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
