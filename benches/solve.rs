@@ -1,5 +1,5 @@
 //! Accuracy and speed of the solve methods on held-out performances (see
-//! `helmcap::solve::benchmark`; `helmcap bench solve` runs the same from the command line).
+//! `helmcap::bench::solve`; `helmcap bench solve` runs the same from the command line).
 //! Run with `cargo bench --bench solve`; prints a Markdown table on stdout and progress on
 //! stderr.
 //!
@@ -14,8 +14,8 @@
 
 use std::path::Path;
 
+use helmcap::bench::solve::{BenchConfig, format_table, run_benchmark};
 use helmcap::solve::Method;
-use helmcap::solve::benchmark::{BenchConfig, format_table, run_benchmark};
 
 fn env_usize(name: &str, default: usize) -> usize {
     std::env::var(name)

@@ -14,7 +14,7 @@
 //! - [`bundles`]: per-frame 3D marker positions (the bundles CSV).
 //! - [`lgi`]: dense reconstruction from bundles by local geometric indexing.
 //! - [`baseline`]: thin-plate RBF and bounded blendshape fit, for comparison with LGI.
-//! - [`solve`]: the solve stage (bundles to dense mesh by any method) and its benchmark.
+//! - [`solve`]: the solve stage (bundles to dense mesh by any method).
 //! - [`camera`]: camera models (pinhole, fisheye), stereo rigs, calibration files.
 //! - [`stereo`]: triangulation of stereo observations into bundles.
 //! - [`align`]: rigid alignment (Horn's method, robust variant) and head stabilization.
@@ -32,11 +32,14 @@
 //!   viewer / `.rrd` recordings.
 //! - [`farm`], [`report`]: take manifests, farm job bundles and merging; the dailies
 //!   report.
+//! - [`bench`]: benchmark harnesses (the solve methods' accuracy and speed) and the host's
+//!   figures for them (CPU time, resident memory, load average).
 
 pub mod align;
 pub mod animation;
 pub mod atomic_file;
 pub mod baseline;
+pub mod bench;
 pub mod bundles;
 pub mod camera;
 pub mod capture;

@@ -398,13 +398,13 @@ fn actor_noisy_preset_does_not_follow_the_noise() {
         .unwrap();
     let mut exact = LgiSolver::new(ds, layout, &LgiParams::default()).unwrap();
     let mut noisy = LgiSolver::new(ds, layout, &LgiParams::noisy()).unwrap();
-    let mut rng = helmcap::solve::benchmark::Rng::new(11);
+    let mut rng = helmcap::bench::solve::Rng::new(11);
     let (mut e_exact, mut e_noisy, mut lid_noisy) = (0.0, 0.0, 0.0f64);
     let frames = 16;
     for f in 0..frames {
         // Random expressions without the right eye's own, so the truth's eyelid stays
         // where the neutral has it.
-        let mut w = helmcap::solve::benchmark::random_weights(&mut rng, names.len());
+        let mut w = helmcap::bench::solve::random_weights(&mut rng, names.len());
         for &e in &eye {
             w[e] = 0.0;
         }

@@ -17,6 +17,7 @@
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
 use super::horn::{HornError, horn_alignment};
+use crate::numeric::upper_median;
 use crate::param_error::{ParamError, non_negative, positive};
 
 /// Robust loss of [`robust_horn`].
@@ -151,11 +152,6 @@ pub fn horn_similarity(
     ))
 }
 
-/// Median of a slice (copied; NaN-free input); 0 when empty.
-fn median(values: &[f64]) -> f64 {
-    crate::numeric::upper_median(values).unwrap_or(0.0)
-}
-
 /// Robust weighted absolute orientation (see the module docs): finds `target_from_source`
 /// (and a scale on request) mapping `source` onto `target`, with `weights` (#P,
 /// non-negative, or empty for all ones) the prior confidence of each pair.
@@ -200,7 +196,8 @@ pub fn robust_horn(
                 .filter(|&(_, &w)| w > 0.0)
                 .map(|(&r, _)| r)
                 .collect();
-            let sigma = (1.4826 * median(&counted)).max(params.min_sigma_mm);
+            // (No counted point: a median of 0, so σ is the floor.)
+            let sigma = (1.4826 * upper_median(&counted).unwrap_or(0.0)).max(params.min_sigma_mm);
             cutoff = sigma * if tukey { 4.685 } else { 1.345 };
             for (w, &r) in robust.iter_mut().zip(&residuals) {
                 *w = if tukey {

@@ -165,7 +165,7 @@ pub struct SolveBenchArgs {
 }
 
 fn solve_bench(a: SolveBenchArgs) -> anyhow::Result<()> {
-    use helmcap::solve::benchmark::{BenchConfig, format_table, run_benchmark};
+    use helmcap::bench::solve::{BenchConfig, format_table, run_benchmark};
     let methods = a
         .methods
         .iter()
@@ -280,11 +280,11 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
     let mut times = Vec::new();
     let mut parts = Vec::new();
     let mut cpu = Vec::new();
-    let mut cpu_before = helmcap::solve::benchmark::process_cpu_seconds();
+    let mut cpu_before = helmcap::bench::host::process_cpu_seconds();
     let rig = builder.build(&examples, &[], &mut |r| {
         times.push(r.seconds);
         parts.push(r.step_seconds);
-        let now = helmcap::solve::benchmark::process_cpu_seconds();
+        let now = helmcap::bench::host::process_cpu_seconds();
         if let (Some(a), Some(b)) = (cpu_before, now) {
             cpu.push(b - a);
         }

@@ -110,10 +110,10 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let mut labeled = 0;
     // Per camera and frame searched in windows: the share of the image searched.
     let mut searched: Vec<f64> = Vec::new();
-    let load_before = load_average();
+    let load_before = helmcap::bench::host::load_average();
     for _ in 0..args.runs.max(1) {
         let mut tracker = StereoTracker::new(new_labeler()?, detect_params.clone());
-        let cpu = helmcap::solve::benchmark::process_cpu_seconds();
+        let cpu = helmcap::bench::host::process_cpu_seconds();
         let t = Instant::now();
         labeled = 0;
         let mut times = Vec::with_capacity(frames.len());
@@ -137,11 +137,11 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         }
         frame_ms.push(times);
         rates.push(frames.len() as f64 / t.elapsed().as_secs_f64());
-        if let (Some(a), Some(b)) = (cpu, helmcap::solve::benchmark::process_cpu_seconds()) {
+        if let (Some(a), Some(b)) = (cpu, helmcap::bench::host::process_cpu_seconds()) {
             cpu_ms.push(1e3 * (b - a) / frames.len() as f64);
         }
     }
-    let load_after = load_average();
+    let load_after = helmcap::bench::host::load_average();
     rates.sort_by(f64::total_cmp);
     cpu_ms.sort_by(f64::total_cmp);
     let (w, h) = (rig.cam0.width_px, rig.cam0.height_px);
@@ -414,12 +414,6 @@ fn acquisition_with_clutter(
         ),
     }
     Ok(())
-}
-
-/// The 1-minute load average from /proc/loadavg (Linux); `None` elsewhere.
-fn load_average() -> Option<String> {
-    let text = std::fs::read_to_string("/proc/loadavg").ok()?;
-    text.split_whitespace().next().map(str::to_owned)
 }
 
 /// The marker whose true projection is nearest `px`, within 4 px.

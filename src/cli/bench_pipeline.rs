@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
+use helmcap::numeric::upper_median;
 use helmcap::pipeline::sources::{LoopSource, PacedSource};
 use helmcap::pipeline::{FrameResult, Metrics, PipelineConfig, SessionMeta, Sink, SinkError};
 use helmcap::sink::{CsvSink, MetricsSink};
@@ -95,14 +96,6 @@ struct RssSink {
     seen: usize,
 }
 
-/// Resident set size of this process, kB (`VmRSS` of /proc/self/status).
-fn rss_kb() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/self/status").ok()?;
-    text.lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-}
-
 impl Sink for RssSink {
     fn name(&self) -> &str {
         "rss"
@@ -112,7 +105,8 @@ impl Sink for RssSink {
     }
     fn write(&mut self, _frame: &FrameResult) -> Result<(), SinkError> {
         if self.seen.is_multiple_of(self.every)
-            && let (Some(kb), Ok(mut s)) = (rss_kb(), self.samples.lock())
+            && let (Some(kb), Ok(mut s)) =
+                (helmcap::bench::host::resident_kib(), self.samples.lock())
         {
             s.push((self.seen, kb));
         }
@@ -122,10 +116,6 @@ impl Sink for RssSink {
     fn finish(&mut self, _metrics: &Metrics) -> Result<(), SinkError> {
         Ok(())
     }
-}
-
-fn median(v: Vec<f64>) -> f64 {
-    helmcap::numeric::upper_median(&v).unwrap_or(f64::NAN)
 }
 
 /// The pipeline configuration of the built-in actor with LGI.
@@ -225,7 +215,7 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
         }
     }
     let source_fps = 60.0;
-    let thr = median(fps.clone());
+    let thr = upper_median(&fps).unwrap_or(f64::NAN);
     println!(
         "replay throughput, median of {runs}: {thr:.1} frames/s = {:.2}× real time (runs: {})",
         thr / source_fps,
@@ -236,7 +226,7 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
     );
     let per_stage: Vec<String> = stage_p50
         .into_iter()
-        .map(|(k, v)| format!("{k} {:.2}", median(v)))
+        .map(|(k, v)| format!("{k} {:.2}", upper_median(&v).unwrap_or(f64::NAN)))
         .collect();
     println!("  mean ms per frame and stage: {}", per_stage.join(", "));
 
@@ -298,15 +288,15 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
     }
     println!(
         "live-paced 60 fps end-to-end latency, median of {runs}: p50 {:.1} ms, p99 {:.1} ms (goal p99 < 33.3 ms); frames dropped {}",
-        median(p50),
-        median(p99),
-        median(dropped)
+        upper_median(&p50).unwrap_or(f64::NAN),
+        upper_median(&p99).unwrap_or(f64::NAN),
+        upper_median(&dropped).unwrap_or(f64::NAN)
     );
     println!(
         "  after the first second (face acquired, caches warm), median of {runs}: p50 {:.1} ms, \
          p99 {:.1} ms",
-        median(steady_p50),
-        median(steady_p99)
+        upper_median(&steady_p50).unwrap_or(f64::NAN),
+        upper_median(&steady_p99).unwrap_or(f64::NAN)
     );
     for (run, line) in slowest.iter().enumerate() {
         println!("  run {}, frames at the sinks: {line}", run + 1);

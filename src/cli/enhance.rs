@@ -236,7 +236,7 @@ pub struct EnhanceBenchArgs {
 /// Runs `helmcap bench enhance`: precomputation time, memory, median per-frame time.
 pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
     let params = EnhanceParams::default();
-    let rss_before = resident_kib();
+    let rss_before = helmcap::bench::host::resident_kib();
     let t = std::time::Instant::now();
     let (dataset, enhancer) = if args.subdivide == 0 {
         build_enhancer(&args.database, &params, true)?
@@ -258,11 +258,11 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         (fine, enhancer)
     };
     let load_and_precompute = t.elapsed().as_secs_f64();
-    let rss_after = resident_kib();
+    let rss_after = helmcap::bench::host::resident_kib();
     let inputs: Vec<_> = std::iter::once(&dataset.neutral.positions)
         .chain(dataset.shapes.iter().map(|s| &s.positions))
         .collect();
-    let cpu_before = helmcap::solve::benchmark::process_cpu_seconds();
+    let cpu_before = helmcap::bench::host::process_cpu_seconds();
     let timed_start = std::time::Instant::now();
     let mut times = Vec::with_capacity(args.frames.max(1));
     let mut steps = Vec::with_capacity(args.frames.max(1));
@@ -282,7 +282,7 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         std::hint::black_box(out);
     }
     let timed_wall = timed_start.elapsed().as_secs_f64();
-    let cpu = match (cpu_before, helmcap::solve::benchmark::process_cpu_seconds()) {
+    let cpu = match (cpu_before, helmcap::bench::host::process_cpu_seconds()) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
@@ -347,11 +347,4 @@ pub fn run_bench(args: EnhanceBenchArgs) -> anyhow::Result<()> {
         step_median(|s| s.finish),
     );
     Ok(())
-}
-
-/// The process's resident set size in KiB, where the platform reports it.
-fn resident_kib() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
 }

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::GrayImage;
+use helmcap::numeric::upper_median;
 use helmcap::pipeline::Sink;
 use helmcap::sink::rerun::{
     BundlePoint, MarkerPixel, MeshTopology, RerunFrame, RerunParams, RerunSession, RerunSink,
@@ -155,10 +156,6 @@ pub struct RerunBenchArgs {
     no_normals: bool,
 }
 
-fn median(v: Vec<f64>) -> f64 {
-    helmcap::numeric::upper_median(&v).unwrap_or(f64::NAN)
-}
-
 /// Cost of logging frames to an `.rrd` file: per-frame time on the calling thread, wall
 /// time per frame including the final flush, process CPU time per frame (all of the SDK's
 /// threads), file size per frame. Median of the runs.
@@ -217,7 +214,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
     let timings = [("detect", 3.0), ("triangulate", 0.4), ("solve", 2.0)];
     let (mut log_ms, mut wall_ms, mut cpu_ms, mut mb) = (vec![], vec![], vec![], vec![]);
     for _ in 0..a.runs.max(1) {
-        let cpu0 = helmcap::solve::benchmark::process_cpu_seconds();
+        let cpu0 = helmcap::bench::host::process_cpu_seconds();
         let t0 = Instant::now();
         let mut sink = RerunSink::new(RerunTarget::File(path.clone()), params.clone())?;
         sink.begin_session(&session)?;
@@ -264,7 +261,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
         let frames = a.frames.max(1) as f64;
         wall_ms.push(t0.elapsed().as_secs_f64() * 1e3 / frames);
         log_ms.push(in_log * 1e3 / frames);
-        if let (Some(c0), Some(c1)) = (cpu0, helmcap::solve::benchmark::process_cpu_seconds()) {
+        if let (Some(c0), Some(c1)) = (cpu0, helmcap::bench::host::process_cpu_seconds()) {
             cpu_ms.push((c1 - c0) * 1e3 / frames);
         }
         let size = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
@@ -283,11 +280,23 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
         a.markers,
         a.runs.max(1)
     );
-    println!("  log_frame (calling thread)  {:8.2} ms", median(log_ms));
-    println!("  wall incl. final flush      {:8.2} ms", median(wall_ms));
+    println!(
+        "  log_frame (calling thread)  {:8.2} ms",
+        upper_median(&log_ms).unwrap_or(f64::NAN)
+    );
+    println!(
+        "  wall incl. final flush      {:8.2} ms",
+        upper_median(&wall_ms).unwrap_or(f64::NAN)
+    );
     if !cpu_ms.is_empty() {
-        println!("  CPU, all threads            {:8.2} ms", median(cpu_ms));
+        println!(
+            "  CPU, all threads            {:8.2} ms",
+            upper_median(&cpu_ms).unwrap_or(f64::NAN)
+        );
     }
-    println!("  file size                   {:8.2} MB", median(mb));
+    println!(
+        "  file size                   {:8.2} MB",
+        upper_median(&mb).unwrap_or(f64::NAN)
+    );
     Ok(())
 }

@@ -46,8 +46,20 @@ pub fn vertex_normals(mesh: &Mesh) -> Vec<Vector3<f64>> {
 /// # Panics
 /// If `positions` has fewer entries than a triangle index needs (a caller bug).
 pub fn vertex_normals_of(mesh: &Mesh, positions: &[Point3<f64>]) -> Vec<Vector3<f64>> {
+    vertex_normals_of_triangles(&mesh.triangles, positions)
+}
+
+/// [`vertex_normals`] of a bare triangle list over `positions` (#V), for callers that hold
+/// a topology without a [`Mesh`].
+///
+/// # Panics
+/// If `positions` has fewer entries than a triangle index needs (a caller bug).
+pub fn vertex_normals_of_triangles(
+    triangles: &[[u32; 3]],
+    positions: &[Point3<f64>],
+) -> Vec<Vector3<f64>> {
     let mut normals = vec![Vector3::zeros(); positions.len()];
-    for t in &mesh.triangles {
+    for t in triangles {
         let n = triangle_cross(positions, t);
         for &v in t {
             normals[v as usize] += n;

@@ -26,7 +26,7 @@ use crate::file_error::FileError;
 pub use geodesic::{edge_graph_distances, update_edge_graph_distances};
 pub use geometry::{
     triangle_areas, triangle_areas_of, triangle_normals, vertex_areas, vertex_normals,
-    vertex_normals_of,
+    vertex_normals_of, vertex_normals_of_triangles,
 };
 pub use laplacian::{
     MassKind, cotangent_laplacian, cotangent_laplacian_of, mass_matrix, mass_matrix_of,

@@ -2,13 +2,11 @@
 //! by local geometric indexing ([`crate::lgi`], the default) or one of the baselines
 //! ([`crate::baseline`]).
 //!
-//! [`Solver`] is the one entry type; [`benchmark`] measures every method on held-out
-//! performances.
+//! [`Solver`] is the one entry type; [`crate::bench::solve`] measures every method on
+//! held-out performances.
 //!
 //! Depends on [`crate::dataset`], [`crate::bundles`], [`crate::lgi`] and
 //! [`crate::baseline`].
-
-pub mod benchmark;
 
 use std::sync::Arc;
 

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use ::rerun as rr;
-use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, UnitQuaternion};
 use rr::{EntityPath, RecordingStream, RecordingStreamBuilder};
 
 use super::{
@@ -206,7 +206,14 @@ impl RerunSink {
             }
             rec.log_static(MESH, &topology).map_err(log_err(MESH))?;
             self.mesh_vertex_count = Some(mesh.vertex_count);
-            self.mesh_triangles = mesh.triangles.clone();
+            // Only for the normals: a triangle with an index outside the topology adds
+            // nothing to them.
+            self.mesh_triangles = mesh
+                .triangles
+                .iter()
+                .filter(|t| t.iter().all(|&i| (i as usize) < mesh.vertex_count))
+                .copied()
+                .collect();
         }
         Ok(())
     }
@@ -604,26 +611,16 @@ fn log_or_clear<A: rr::AsComponents>(
     }
 }
 
-/// Area-weighted vertex normals (unit length; zero for unused vertices), as f32 triples.
+/// Area-weighted vertex normals (unit length; zero for unused vertices) of
+/// [`crate::mesh::vertex_normals_of_triangles`], as f32 triples.
+///
+/// # Panics
+/// If a triangle index is outside `positions` (the sink keeps only the triangles inside the
+/// session's topology, whose vertex count every frame's mesh is checked against).
 fn vertex_normals(positions: &[Point3<f64>], triangles: &[[u32; 3]]) -> Vec<[f32; 3]> {
-    let mut sums = vec![Vector3::<f64>::zeros(); positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| i as usize);
-        let (Some(pa), Some(pb), Some(pc)) = (positions.get(a), positions.get(b), positions.get(c))
-        else {
-            continue;
-        };
-        // The cross product's length is twice the area: an area weighting.
-        let n = (pb - pa).cross(&(pc - pa));
-        for i in [a, b, c] {
-            sums[i] += n;
-        }
-    }
-    sums.iter()
-        .map(|n| {
-            let n = n.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
-            [n.x as f32, n.y as f32, n.z as f32]
-        })
+    crate::mesh::vertex_normals_of_triangles(triangles, positions)
+        .iter()
+        .map(|n| [n.x as f32, n.y as f32, n.z as f32])
         .collect()
 }
 

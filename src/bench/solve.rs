@@ -33,30 +33,11 @@ use std::time::Instant;
 
 use nalgebra::{Point3, Vector3};
 
-use super::{Method, SolveParams, Solver};
+use super::host::{process_cpu_seconds, thread_cpu_seconds};
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout, Shape};
 use crate::lgi::{LgiParams, TemporalParams};
-
-/// CPU time this thread has run so far, s, from `/proc/thread-self/schedstat` (Linux,
-/// nanoseconds); `None` elsewhere.
-pub fn thread_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    let ns: f64 = stat.split_whitespace().next()?.parse().ok()?;
-    Some(ns * 1e-9)
-}
-
-/// CPU time (user + system, all threads) of this process so far, s, from
-/// `/proc/self/stat` (Linux; clock ticks taken as 1/100 s); `None` elsewhere.
-pub fn process_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the command name (which may contain spaces) start after the last ')'.
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let utime: f64 = f.get(11)?.parse().ok()?;
-    let stime: f64 = f.get(12)?.parse().ok()?;
-    Some((utime + stime) / 100.0)
-}
+use crate::solve::{Method, SolveParams, Solver};
 
 /// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
 #[derive(Debug, Clone)]
@@ -922,21 +903,5 @@ mod tests {
             lines[3],
             "| d | exact | lgi | 0.123 | 0.500 | 0.000 | 12.35 |  | 1.50 |  |"
         );
-    }
-
-    #[test]
-    fn thread_cpu_time_grows_with_work() {
-        let Some(a) = thread_cpu_seconds() else {
-            eprintln!("skipped: no /proc/thread-self/schedstat");
-            return;
-        };
-        let mut x = 0u64;
-        let t = Instant::now();
-        while t.elapsed().as_millis() < 50 {
-            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
-        }
-        let b = thread_cpu_seconds().unwrap_or(a);
-        assert!(b > a, "thread CPU time did not grow: {a} -> {b}");
-        assert!(b - a < 10.0, "implausible thread CPU time: {a} -> {b}");
     }
 }
