@@ -226,7 +226,7 @@ impl Labeler {
                 }
             })
             .collect();
-        robust_horn(&src, &dst, &base)
+        trimmed_horn(&src, &dst, &base)
     }
 
     /// One labeling pass: per-camera gated optimal assignment, then left/right pairing
@@ -386,9 +386,10 @@ fn singular_values(j: &nalgebra::Matrix2x3<f64>) -> (f64, f64) {
     )
 }
 
-/// Weighted Horn with outlier rejection: residuals above `max(3·median, 1 mm)` are
-/// dropped, twice. Returns the pose and the weighted RMS residual of the kept points.
-fn robust_horn(
+/// Weighted Horn with hard outlier rejection (not `align::robust_horn`'s reweighting):
+/// residuals above `max(3·median, 1 mm)` are dropped, twice. Returns the pose and the
+/// weighted RMS residual of the kept points.
+fn trimmed_horn(
     src: &[Point3<f64>],
     dst: &[Point3<f64>],
     base: &[f64],
