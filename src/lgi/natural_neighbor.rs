@@ -734,13 +734,8 @@ mod tests {
     fn clusters_of_missing_markers_are_independent() {
         let mesh = grid(30, 1.0);
         let n = mesh.vertex_count() as u32;
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move |below: u32| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state % u64::from(below)) as u32
-        };
+        let mut rng: rand::rngs::StdRng = rand::SeedableRng::seed_from_u64(7);
+        let mut next = move |below: u32| rand::Rng::random_range(&mut rng, 0..below);
         let mut compared = 0;
         for _ in 0..60 {
             let mut markers: Vec<u32> = Vec::new();

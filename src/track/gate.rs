@@ -143,16 +143,10 @@ impl EpipolarGate {
 mod tests {
     use super::*;
 
-    /// Half-normal samples `|N(0, s²)|` (seeded SplitMix64 + Box-Muller).
+    /// Half-normal samples `|N(0, s²)|` (seeded generator + Box-Muller).
     fn half_normal(n: usize, s: f64, seed: u64) -> Vec<f64> {
-        let mut state = seed;
-        let mut uniform = || {
-            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng: rand::rngs::StdRng = rand::SeedableRng::seed_from_u64(seed);
+        let mut uniform = || rand::Rng::random::<f64>(&mut rng);
         (0..n)
             .map(|_| {
                 let (u1, u2) = (uniform().max(1e-300), uniform());
