@@ -361,7 +361,7 @@ impl MarkerDetector {
         let scaled = params.scaled_to_dot_sizes();
         self.threshold(image, &scaled, small, roi, windows);
         let mut out = Vec::new();
-        self.components(image, &scaled, roi, &mut out, rejected);
+        self.components(image, &scaled, roi, 0, &mut out, rejected);
         out
     }
 
@@ -393,11 +393,19 @@ impl MarkerDetector {
         };
         let mut fine = Vec::new();
         self.threshold(image, &fine_params, small, roi, windows);
-        self.components(image, &fine_params, roi, &mut fine, rejected);
+        self.components(image, &fine_params, roi, 0, &mut fine, rejected);
+        let limit = small_scale_limit_px(small);
+        // The large scale keeps round blobs (roundness ≥ 0.5) wider than `limit`
+        // (`4√λ₁ > limit`). An 8-connected set of pixels spread that wide in both
+        // directions has at least about 2.2·limit pixels (the sparsest such sets are thin
+        // rings and crosses; a filled disc has far more). Smaller components (pores,
+        // freckles, most skin texture in the large window), and so all their parts,
+        // cannot be one: they are not measured (bound taken at 1.2·limit, for the pixel
+        // grid and the `+1/12` of a pixel's own extent).
+        let coarse_min_px = (1.2 * limit).floor() as usize;
         let mut coarse = Vec::new();
         self.threshold(image, &scaled, large, roi, windows);
-        self.components(image, &scaled, roi, &mut coarse, None);
-        let limit = small_scale_limit_px(small);
+        self.components(image, &scaled, roi, coarse_min_px, &mut coarse, None);
         let inside = |c: &Detection, f: &Detection| {
             (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
         };
@@ -426,12 +434,14 @@ impl MarkerDetector {
     }
 
     /// Connected components (8-connectivity) of the candidate mask over the ROI, each
-    /// measured or split by [`split_and_measure`].
+    /// measured or split by [`split_and_measure`]; components of fewer than `min_px`
+    /// pixels are left out.
     fn components(
         &mut self,
         image: &GrayImage,
         params: &DetectParams,
         (x0, y0, x1, y1): (usize, usize, usize, usize),
+        min_px: usize,
         out: &mut Vec<Detection>,
         mut rejected: Option<&mut Vec<Rejection>>,
     ) {
@@ -482,7 +492,17 @@ impl MarkerDetector {
                             }
                         }
                     }
-                    split_and_measure(image, pixels, c, 0, params, out, rejected.as_deref_mut());
+                    if pixels.len() >= min_px {
+                        split_and_measure(
+                            image,
+                            pixels,
+                            c,
+                            0,
+                            params,
+                            out,
+                            rejected.as_deref_mut(),
+                        );
+                    }
                 }
                 chunk = chunk_end;
             }
