@@ -305,7 +305,7 @@ const PRESETS: &[(&str, Goal)] = &[
     (
         "color-dots",
         Goal::Floor {
-            labeled: 0.70,
+            labeled: 0.98,
             max_wrong: 0,
         },
     ),

@@ -67,8 +67,13 @@ pub enum GrayConversion {
     Luma,
     /// One channel: 0 red, 1 green, 2 blue.
     Channel(usize),
-    /// Distance to a dot colour (RGB, 8-bit levels), saturated at 255: dots of that
-    /// colour come out dark whatever their brightness.
+    /// Difference of hue from a dot colour (RGB, 8-bit levels): `255 · sin θ`, θ the angle
+    /// between the pixel's RGB vector and the dot colour's, so that dots of that colour
+    /// come out dark whatever the light on them (a dot in the boom's shadow as dark as a
+    /// lit one, where a distance to the colour would make it grey), and skin of any
+    /// brightness comes out bright. Below a quarter of the dot colour's brightness hue is
+    /// lost in the noise: such pixels fade to white (the pupils and the mouth's inside are
+    /// not taken for ink).
     DotColor([f64; 3]),
 }
 
@@ -87,7 +92,20 @@ impl GrayConversion {
             GrayConversion::Luma => 0.299 * r + 0.587 * g + 0.114 * b,
             GrayConversion::Channel(c) => rgb[c.min(2)],
             GrayConversion::DotColor([cr, cg, cb]) => {
-                ((r - cr).powi(2) + (g - cg).powi(2) + (b - cb).powi(2)).sqrt()
+                let c_norm = (cr * cr + cg * cg + cb * cb).sqrt().max(1e-9);
+                let p_norm = (r * r + g * g + b * b).sqrt();
+                // |p × c| / (|p| |c|).
+                let cross = ((g * cb - b * cg).powi(2)
+                    + (b * cr - r * cb).powi(2)
+                    + (r * cg - g * cr).powi(2))
+                .sqrt();
+                let sin = if p_norm > 0.0 {
+                    (cross / (p_norm * c_norm)).min(1.0)
+                } else {
+                    1.0
+                };
+                let lit = (p_norm / (0.25 * c_norm)).min(1.0);
+                255.0 * (lit * sin + (1.0 - lit))
             }
         };
         // NaN saturates to 0 in `as`.
@@ -522,6 +540,13 @@ mod tests {
             GrayConversion::DotColor([10.0, 200.0, 30.0]).convert([10, 200, 30]),
             0
         );
+        // Hue, not brightness: a green dot in shadow stays dark, skin in shadow stays as
+        // bright as lit skin, and near-black (a pupil) is not ink.
+        let green = GrayConversion::DotColor([20.0, 115.0, 41.0]);
+        assert!(green.convert([10, 58, 21]) <= 2);
+        let (lit, shaded) = (green.convert([200, 150, 130]), green.convert([100, 75, 65]));
+        assert!(lit > 120 && lit.abs_diff(shaded) <= 1, "{lit} {shaded}");
+        assert!(green.convert([3, 4, 3]) > 200);
         // Grey with alpha: the grey channel.
         let ga: Vec<u8> = (0..64u8).flat_map(|v| [v * 3, 255 - v]).collect();
         let png_ga = png_bytes(

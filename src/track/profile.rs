@@ -77,7 +77,8 @@ pub struct CaptureProfile {
     /// Dark or bright dots. Default dark.
     pub polarity: Polarity,
     /// Colour cameras: the dots' colour (RGB, 8-bit levels); the detector then reads the
-    /// distance to it, so the dots appear dark whatever the polarity. Default none.
+    /// difference of hue from it (`GrayConversion::DotColor`), so the dots appear dark
+    /// whatever the polarity and the light on them. Default none.
     pub color: Option<[f64; 3]>,
     /// Colour cameras: read this channel instead of luma. Default none.
     pub channel: Option<Channel>,
