@@ -87,29 +87,62 @@ impl GrayConversion {
     /// necessarily whole: 16-bit and float samples scaled to 8 bits, see the module docs).
     /// For whole levels this is [`GrayConversion::convert`].
     pub fn convert_levels(&self, rgb: [f64; 3]) -> u8 {
+        PreparedConversion::new(*self).level(rgb)
+    }
+}
+
+/// A [`GrayConversion`] with its per-image constants worked out, for the per-pixel loop.
+#[derive(Debug, Clone, Copy)]
+struct PreparedConversion {
+    conversion: GrayConversion,
+    /// `DotColor`: the colour, its squared length and the squared brightness below which
+    /// hue fades out (a quarter of the colour's).
+    colour: [f64; 3],
+    colour_sq: f64,
+    dim_sq: f64,
+}
+
+impl PreparedConversion {
+    fn new(conversion: GrayConversion) -> Self {
+        let colour = match conversion {
+            GrayConversion::DotColor(c) => c,
+            _ => [0.0; 3],
+        };
+        let colour_sq = colour.iter().map(|v| v * v).sum::<f64>().max(1e-18);
+        Self {
+            conversion,
+            colour,
+            colour_sq,
+            dim_sq: 0.0625 * colour_sq,
+        }
+    }
+
+    #[inline]
+    fn level(&self, rgb: [f64; 3]) -> u8 {
         let [r, g, b] = rgb;
-        let level = match *self {
+        let level = match self.conversion {
             GrayConversion::Luma => 0.299 * r + 0.587 * g + 0.114 * b,
             GrayConversion::Channel(c) => rgb[c.min(2)],
-            GrayConversion::DotColor([cr, cg, cb]) => {
-                let c_norm = (cr * cr + cg * cg + cb * cb).sqrt().max(1e-9);
-                let p_norm = (r * r + g * g + b * b).sqrt();
-                // |p × c| / (|p| |c|).
-                let cross = ((g * cb - b * cg).powi(2)
-                    + (b * cr - r * cb).powi(2)
-                    + (r * cg - g * cr).powi(2))
-                .sqrt();
-                let sin = if p_norm > 0.0 {
-                    (cross / (p_norm * c_norm)).min(1.0)
+            GrayConversion::DotColor(_) => {
+                let [cr, cg, cb] = self.colour;
+                let p_sq = r * r + g * g + b * b;
+                let dot = r * cr + g * cg + b * cb;
+                // sin θ = √(1 − cos²θ), θ the angle between the pixel and the colour.
+                let sin = if p_sq > 0.0 {
+                    (1.0 - dot * dot / (p_sq * self.colour_sq)).max(0.0).sqrt()
                 } else {
                     1.0
                 };
-                let lit = (p_norm / (0.25 * c_norm)).min(1.0);
-                255.0 * (lit * sin + (1.0 - lit))
+                if p_sq >= self.dim_sq {
+                    255.0 * sin
+                } else {
+                    let lit = (p_sq / self.dim_sq).sqrt();
+                    255.0 * (lit * sin + (1.0 - lit))
+                }
             }
         };
-        // NaN saturates to 0 in `as`.
-        level.round().clamp(0.0, 255.0) as u8
+        // Round half up (levels are never negative after the clamp); NaN becomes 0.
+        (level.clamp(0.0, 255.0) + 0.5) as u8
     }
 }
 
@@ -334,10 +367,12 @@ fn to_gray(
     let data = match samples {
         Samples::U8(s) if channels == 1 => s,
         Samples::U8(s) if channels == 2 => s.chunks_exact(2).map(|p| p[0]).collect(),
-        Samples::U8(s) => s
-            .chunks_exact(channels)
-            .map(|p| conversion.convert([p[0], p[1], p[2]]))
-            .collect(),
+        Samples::U8(s) => {
+            let prepared = PreparedConversion::new(conversion);
+            s.chunks_exact(channels)
+                .map(|p| prepared.level([p[0], p[1], p[2]].map(f64::from)))
+                .collect()
+        }
         Samples::U16(s) => {
             // Full scale of the samples: 65535 for the ×257 case, else 2^bits − 1.
             let full = significant_bits(&s, channels, sbit).map_or(65535, |b| (1u32 << b) - 1);
@@ -348,9 +383,10 @@ fn to_gray(
                     .collect()
             } else {
                 let scale = 255.0 / f64::from(full);
+                let prepared = PreparedConversion::new(conversion);
                 s.chunks_exact(channels)
                     .map(|p| {
-                        conversion.convert_levels([
+                        prepared.level([
                             f64::from(p[0]) * scale,
                             f64::from(p[1]) * scale,
                             f64::from(p[2]) * scale,
@@ -359,17 +395,19 @@ fn to_gray(
                     .collect()
             }
         }
-        Samples::F32(s) => s
-            .chunks_exact(channels)
-            .map(|p| {
-                let level = |v: f32| f64::from(v) * 255.0;
-                if channels <= 2 {
-                    level(p[0]).round().clamp(0.0, 255.0) as u8
-                } else {
-                    conversion.convert_levels([level(p[0]), level(p[1]), level(p[2])])
-                }
-            })
-            .collect(),
+        Samples::F32(s) => {
+            let prepared = PreparedConversion::new(conversion);
+            s.chunks_exact(channels)
+                .map(|p| {
+                    let level = |v: f32| f64::from(v) * 255.0;
+                    if channels <= 2 {
+                        level(p[0]).round().clamp(0.0, 255.0) as u8
+                    } else {
+                        prepared.level([level(p[0]), level(p[1]), level(p[2])])
+                    }
+                })
+                .collect()
+        }
     };
     Ok(GrayImage {
         width,
