@@ -82,13 +82,15 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
             tmp.clone()
         }
     };
-    let replay = Replay::open(&session, ReplayParams::default())?;
+    let mut replay = Replay::open(&session, ReplayParams::default())?;
     let rig = replay
         .rig()
         .context("the session has no calibration")?
         .clone();
     let profile =
         super::take::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
+    // Colour footage is read as `replay` reads it: the profile's conversion to grey.
+    replay.set_gray_conversion(profile.gray_conversion());
     let detect_params = profile.detect_params(Some(&rig));
     let label_params = profile.label_params();
     let frames: Vec<StereoFrame> = replay.collect::<Result<_, _>>()?;
