@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use helmcap::animation::{ARKIT_NAMES, NameMap, RigSolveParams, RigSolver};
+use helmcap::animation::{NameMap, RigSolveParams, RigSolver};
 use helmcap::dataset::Dataset;
 use helmcap::sink::{AnimationOutputs, AnimationWriter, read_usda_sequence};
 use helmcap::timecode::{Timecode, TimecodeClock};
@@ -62,22 +62,6 @@ pub struct AnimateArgs {
     /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
     #[arg(long, value_name = "DIR")]
     pub cache_dir: Option<PathBuf>,
-}
-
-/// The name map for a rig when none is given: the shipped built-in or ICT map when the
-/// rig's shapes are theirs, the identity when they are ARKit names already.
-pub fn default_name_map(rig: &Dataset) -> NameMap {
-    let names: Vec<&str> = rig.shapes.iter().map(|s| s.name.as_str()).collect();
-    let covered = |m: &NameMap| m.resolve(&names, &ARKIT_NAMES).unmapped_shapes.len();
-    let candidates = [
-        NameMap::builtin_arkit(),
-        NameMap::ict_arkit(),
-        NameMap::identity(&ARKIT_NAMES),
-    ];
-    candidates
-        .into_iter()
-        .min_by_key(covered)
-        .unwrap_or_else(|| NameMap::identity(&ARKIT_NAMES))
 }
 
 /// One frame of the input.
@@ -220,7 +204,7 @@ pub fn run(args: AnimateArgs) -> anyhow::Result<()> {
     };
     let map = match &args.name_map {
         Some(p) => NameMap::read_csv(p)?,
-        None => default_name_map(&rig),
+        None => NameMap::default_for(&rig),
     };
     let outputs = AnimationOutputs {
         dir: args.out.clone(),
@@ -330,7 +314,7 @@ impl RigStageArgs {
         let solver = RigSolver::new(&rig, &params)?;
         let map = match &self.name_map {
             Some(p) => NameMap::read_csv(p)?,
-            None => default_name_map(&rig),
+            None => NameMap::default_for(&rig),
         };
         let mut files = vec![out.join("rig_weights.csv")];
         if livelink_csv {

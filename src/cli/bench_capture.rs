@@ -46,10 +46,7 @@ pub struct CaptureBenchArgs {
 /// Runs the capture benchmark and prints the figures.
 pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let actor = Actor::new(&ActorParams::default()).context("building the built-in actor")?;
-    let layout = MarkerLayout::parse_csv(
-        include_str!("../../configs/markers/builtin-actor.csv"),
-        "builtin-actor.csv",
-    )?;
+    let layout = MarkerLayout::builtin_actor()?;
     let tmp;
     let session = match &args.session {
         Some(s) => s.clone(),

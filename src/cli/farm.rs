@@ -189,7 +189,7 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
         });
     } else {
         // Checked here, not on the farm.
-        super::builtin_params(&args.dataset)?.with_context(|| {
+        helmcap::dataset::builtin_params(&args.dataset)?.with_context(|| {
             format!(
                 "--dataset {}: neither a file nor builtin[:SEED]",
                 args.dataset

@@ -16,7 +16,7 @@ use helmcap::solve::Solver;
 use helmcap::track::CaptureProfile;
 use nalgebra::Point3;
 
-use super::{DatasetArgs, builtin_params};
+use super::DatasetArgs;
 
 /// The options of a take that `replay` and `live` share (flattened into both).
 #[derive(Debug, Clone, clap::Args)]
@@ -222,10 +222,9 @@ pub fn load_layout(dataset: &str, markers: Option<&Path>) -> anyhow::Result<Mark
         Some(p) => {
             MarkerLayout::read_csv(p).with_context(|| format!("reading markers {}", p.display()))
         }
-        None if builtin_params(dataset)?.is_some() => Ok(MarkerLayout::parse_csv(
-            include_str!("../../configs/markers/builtin-actor.csv"),
-            "builtin-actor.csv",
-        )?),
+        None if helmcap::dataset::builtin_params(dataset)?.is_some() => {
+            Ok(MarkerLayout::builtin_actor()?)
+        }
         None => bail!("--markers is required with a dataset manifest"),
     }
 }
@@ -472,8 +471,8 @@ pub fn dense_stages(
     )?;
     let solver = Solver::lgi(index, &params)?;
     let enhancer = if enhance {
-        let params = super::enhance::read_params(None)?;
-        let (_, enhancer) = super::enhance::build_enhancer(&dataset.dataset, &params, true)?;
+        let params = helmcap::enhance::read_params(None)?;
+        let (_, enhancer) = helmcap::enhance::build_enhancer(&dataset.dataset, &params, true)?;
         Some(Arc::new(enhancer))
     } else {
         None
