@@ -85,7 +85,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .context("the session has no calibration")?
         .clone();
     let profile =
-        super::take::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
+        helmcap::take::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
     let detect_params = profile.detect_params(Some(&rig));
     let label_params = profile.label_params();
     let frames: Vec<StereoFrame> = replay.collect::<Result<_, _>>()?;
