@@ -30,6 +30,7 @@
 //!   sink interface).
 //! - [`sink`]: the file sinks (CSV, metrics, OBJ/PLY sequences, USD, C3D) and the rerun
 //!   viewer / `.rrd` recordings.
+//! - [`take`]: a take assembled from one `TakeSpec` (dataset, profile, stages, sinks).
 //! - [`farm`], [`report`]: take manifests, farm job bundles and merging; the dailies
 //!   report.
 //! - [`bench`]: benchmark harnesses (the solve methods' accuracy and speed) and the host's
@@ -60,5 +61,6 @@ pub mod sink;
 pub mod solve;
 pub mod stereo;
 pub mod synth;
+pub mod take;
 pub mod timecode;
 pub mod track;

@@ -1,6 +1,7 @@
 //! Name maps: a rig's shape names mapped to a target convention (CSV `shape,target`),
 //! and Apple's 52 ARKit blendshape names.
 
+use crate::dataset::Dataset;
 use crate::file_error::FileError;
 use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 use std::collections::{BTreeMap, HashMap};
@@ -123,6 +124,23 @@ impl NameMap {
     /// The map from (shape, target) pairs.
     pub fn new(rows: Vec<(String, String)>) -> Self {
         Self { rows }
+    }
+
+    /// The map for `rig` when none is given: the shipped built-in or ICT map when the
+    /// rig's shapes are theirs, the identity when they are ARKit names already (the
+    /// candidate that leaves the fewest shapes unmapped).
+    pub fn default_for(rig: &Dataset) -> Self {
+        let names: Vec<&str> = rig.shapes.iter().map(|s| s.name.as_str()).collect();
+        let covered = |m: &NameMap| m.resolve(&names, &ARKIT_NAMES).unmapped_shapes.len();
+        let candidates = [
+            NameMap::builtin_arkit(),
+            NameMap::ict_arkit(),
+            NameMap::identity(&ARKIT_NAMES),
+        ];
+        candidates
+            .into_iter()
+            .min_by_key(covered)
+            .unwrap_or_else(|| NameMap::identity(&ARKIT_NAMES))
     }
 
     /// The shipped map from the built-in actor's expression names to ARKit's

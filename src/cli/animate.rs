@@ -4,9 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use helmcap::animation::{ARKIT_NAMES, NameMap, RigSolveParams, RigSolver};
-use helmcap::dataset::Dataset;
+use helmcap::animation::{NameMap, RigSolveParams, RigSolver};
 use helmcap::sink::{AnimationOutputs, AnimationWriter, read_usda_sequence};
+use helmcap::take::RigSpec;
 use helmcap::timecode::{Timecode, TimecodeClock};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 
@@ -62,22 +62,6 @@ pub struct AnimateArgs {
     /// Cache folder (default: $HELMCAP_CACHE_DIR, else ~/.cache/helmcap).
     #[arg(long, value_name = "DIR")]
     pub cache_dir: Option<PathBuf>,
-}
-
-/// The name map for a rig when none is given: the shipped built-in or ICT map when the
-/// rig's shapes are theirs, the identity when they are ARKit names already.
-pub fn default_name_map(rig: &Dataset) -> NameMap {
-    let names: Vec<&str> = rig.shapes.iter().map(|s| s.name.as_str()).collect();
-    let covered = |m: &NameMap| m.resolve(&names, &ARKIT_NAMES).unmapped_shapes.len();
-    let candidates = [
-        NameMap::builtin_arkit(),
-        NameMap::ict_arkit(),
-        NameMap::identity(&ARKIT_NAMES),
-    ];
-    candidates
-        .into_iter()
-        .min_by_key(covered)
-        .unwrap_or_else(|| NameMap::identity(&ARKIT_NAMES))
 }
 
 /// One frame of the input.
@@ -220,7 +204,7 @@ pub fn run(args: AnimateArgs) -> anyhow::Result<()> {
     };
     let map = match &args.name_map {
         Some(p) => NameMap::read_csv(p)?,
-        None => default_name_map(&rig),
+        None => NameMap::default_for(&rig),
     };
     let outputs = AnimationOutputs {
         dir: args.out.clone(),
@@ -297,58 +281,14 @@ pub struct RigStageArgs {
     pub livelink: Option<String>,
 }
 
-/// The animation sink of a take and the files it writes.
-pub type AnimationSink = (Box<dyn helmcap::pipeline::Sink>, Vec<PathBuf>);
-
 impl RigStageArgs {
-    /// When a rig or an animation export is asked for: switches the pipeline's rig stage
-    /// on in `config` and returns the animation sink that writes its weights, and the
-    /// files it writes.
-    ///
-    /// # Errors
-    /// When the rig cannot be loaded or solved for, or the name map cannot be read.
-    pub fn install(
-        &self,
-        config: &mut helmcap::pipeline::PipelineConfig,
-        take_dataset: &Dataset,
-        cache: &DatasetArgs,
-        livelink_csv: bool,
-        usd_skel: bool,
-        out: &Path,
-    ) -> anyhow::Result<Option<AnimationSink>> {
-        if self.rig.is_none() && !livelink_csv && !usd_skel && self.livelink.is_none() {
-            return Ok(None);
-        }
-        let rig = match &self.rig {
-            Some(spec) if *spec != cache.dataset => cache.for_dataset(spec.clone()).load()?,
-            _ => take_dataset.clone(),
-        };
-        let params = RigSolveParams {
+    /// The rig stage these options ask for.
+    pub fn spec(&self) -> RigSpec {
+        RigSpec {
+            rig: self.rig.clone(),
+            name_map: self.name_map.clone(),
             smoothing: self.rig_smoothing,
-            ..RigSolveParams::default()
-        };
-        let solver = RigSolver::new(&rig, &params)?;
-        let map = match &self.name_map {
-            Some(p) => NameMap::read_csv(p)?,
-            None => default_name_map(&rig),
-        };
-        let mut files = vec![out.join("rig_weights.csv")];
-        if livelink_csv {
-            files.push(out.join("livelink.csv"));
+            livelink: self.livelink.clone(),
         }
-        if usd_skel {
-            files.push(out.join("face_skel.usda"));
-        }
-        config.rig_solver = Some(solver.clone());
-        let sink = helmcap::sink::AnimationSink::new(
-            solver,
-            AnimationOutputs {
-                dir: out.to_path_buf(),
-                livelink: livelink_csv.then(|| map.clone()),
-                usd_skel: usd_skel.then(|| std::sync::Arc::new(rig.neutral.clone())),
-                livelink_udp: self.livelink.clone().map(|t| (t, map)),
-            },
-        );
-        Ok(Some((Box::new(sink), files)))
     }
 }

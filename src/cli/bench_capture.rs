@@ -46,10 +46,7 @@ pub struct CaptureBenchArgs {
 /// Runs the capture benchmark and prints the figures.
 pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
     let actor = Actor::new(&ActorParams::default()).context("building the built-in actor")?;
-    let layout = MarkerLayout::parse_csv(
-        include_str!("../../configs/markers/builtin-actor.csv"),
-        "builtin-actor.csv",
-    )?;
+    let layout = MarkerLayout::builtin_actor()?;
     let tmp;
     let session = match &args.session {
         Some(s) => s.clone(),
@@ -88,7 +85,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .context("the session has no calibration")?
         .clone();
     let profile =
-        super::take::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
+        helmcap::take::load_profile(args.profile.as_deref().or(replay.info().profile.as_deref()))?;
     // Colour footage is read as `replay` reads it: the profile's conversion to grey.
     replay.set_gray_conversion(profile.gray_conversion());
     let detect_params = profile.detect_params(Some(&rig));

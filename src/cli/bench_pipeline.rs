@@ -1,6 +1,7 @@
 //! `helmcap bench pipeline`: replay throughput, live-paced latency and a memory soak of
 //! the streaming pipeline on a synthetic 1280×1024, 60 fps session of the built-in actor
-//! (detection → labeling → stabilization → LGI, no enhancement; CSV and metrics sinks).
+//! (detection → labeling → stabilization → LGI, no enhancement; CSV and metrics sinks),
+//! the take assembled by the library's `TakeSpec` with the capture defaults.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -9,17 +10,14 @@ use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
+use helmcap::dataset::{DatasetSpec, MarkerLayout};
 use helmcap::numeric::upper_median;
 use helmcap::pipeline::sources::{LoopSource, PacedSource};
 use helmcap::pipeline::{FrameResult, Metrics, PipelineConfig, SessionMeta, Sink, SinkError};
-use helmcap::sink::{CsvSink, MetricsSink};
-use helmcap::solve::Solver;
 use helmcap::synth::{
     AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
 };
-
-use super::DatasetArgs;
-use super::take::load_layout;
+use helmcap::take::{TakeSpec, file_sinks};
 
 /// Arguments of `helmcap bench pipeline`.
 #[derive(Debug, clap::Args)]
@@ -118,24 +116,21 @@ impl Sink for RssSink {
     }
 }
 
-/// The pipeline configuration of the built-in actor with LGI.
+/// The pipeline configuration of the built-in actor with LGI (the pipeline's default
+/// parameters; no index cache) and the capture defaults.
 fn actor_config(rig: helmcap::camera::StereoRig) -> anyhow::Result<PipelineConfig> {
-    let layout = load_layout("builtin", None)?;
-    let ds = DatasetArgs::new("builtin").load()?;
-    let neutral: Vec<_> = layout
-        .markers
-        .iter()
-        .map(|m| ds.neutral.positions[m.vertex as usize])
-        .collect();
-    // The pipeline's own default.
-    let params = super::take::SolveStageArgs::default().lgi_params()?;
-    let index = super::solve::lgi_index_cached(&ds, &layout, &params, None)?;
-    let templates = layout.expression_templates(&ds);
-    let mut config = PipelineConfig::new(Arc::new(layout), Arc::new(neutral), rig);
-    config.track.expression_templates = Arc::new(templates);
-    config.solve.solver = Some(Solver::lgi(index, &params)?);
-    config.solve.neutral = Some(Arc::new(ds.neutral.clone()));
-    config.solve.face_vertices = Some(ds.face_vertices.clone());
+    let spec = TakeSpec {
+        dataset: DatasetSpec {
+            no_cache: true,
+            ..DatasetSpec::default()
+        },
+        ..TakeSpec::default()
+    };
+    let take = spec.load()?;
+    let mut config = take.pipeline_config(rig);
+    if let Some(stages) = spec.dense_stages(&take)? {
+        stages.install(&mut config, &take.dataset);
+    }
     Ok(config)
 }
 
@@ -146,10 +141,7 @@ fn run_once(
     extra: Vec<Box<dyn Sink>>,
 ) -> anyhow::Result<Metrics> {
     let config = actor_config(rig.clone())?;
-    let mut sinks: Vec<Box<dyn Sink>> = vec![
-        Box::new(CsvSink::new(out)),
-        Box::new(MetricsSink::new(&out.join("metrics.json"))),
-    ];
+    let (mut sinks, _) = file_sinks(out, &[]);
     sinks.extend(extra);
     Ok(helmcap::pipeline::run(
         source,
@@ -170,7 +162,7 @@ pub fn run(args: PipelineBenchArgs) -> anyhow::Result<()> {
     let session = work.join("session");
     let rig = default_rig().context("the built-in rig")?;
     if !session.join("frames.csv").is_file() {
-        let layout = load_layout("builtin", None)?;
+        let layout = MarkerLayout::builtin_actor()?;
         let actor = helmcap::dataset::actor::Actor::new(&Default::default())?;
         let performer = Performer::Actor(Box::new(actor));
         let synth = SynthParams {

@@ -12,9 +12,10 @@ use helmcap::dataset::actor;
 use helmcap::synth::{
     AnimationParams, Performer, SynthParams, animation, default_rig, render_session,
 };
+use helmcap::take::{Export, load_layout};
 
 use super::replay::{ReplayArgs, replay};
-use super::take::{Export, TakeArgs, load_layout, print_summary};
+use super::take::{TakeArgs, print_summary};
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {

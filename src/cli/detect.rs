@@ -7,14 +7,13 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use helmcap::capture::{GrayImage, Replay, ReplayParams, StereoFrame};
+use helmcap::dataset::DatasetSpec;
+use helmcap::take::TakeDataset;
 use helmcap::track::{
     CaptureProfile, DetectParams, Detection, LabeledFrame, Labeler, MarkerDetector, Rejection,
 };
 use opencv::core::{Mat, Point, Scalar};
 use opencv::prelude::*;
-
-use super::DatasetArgs;
-use super::take::load_dataset_and_layout;
 
 /// Arguments of `helmcap detect`.
 #[derive(Debug, clap::Args)]
@@ -96,10 +95,11 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let mut names: Vec<String> = Vec::new();
     let labels: Option<LabeledFrame> = match (&rig, results.len()) {
         (Some(rig), 2) => {
-            let (_, layout, neutral) = load_dataset_and_layout(
-                &DatasetArgs::new(args.dataset.clone()),
+            let take = TakeDataset::load(
+                &DatasetSpec::new(args.dataset.clone()),
                 args.markers.as_deref(),
             )?;
+            let (layout, neutral) = (take.layout, take.neutral_markers);
             names = layout.markers.iter().map(|m| m.name.clone()).collect();
             let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label_params())?;
             Some(labeler.process(0, [&results[0].dots, &results[1].dots]))

@@ -4,13 +4,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use helmcap::dataset::Dataset;
 use helmcap::dataset::actor::Actor;
-use helmcap::enhance::{EnhanceParams, EnhanceTimings, Enhancer, VoluntaryRegions};
+use helmcap::dataset::builtin_params;
+use helmcap::enhance::{EnhanceParams, EnhanceTimings, Enhancer, build_enhancer, read_params};
 use helmcap::mesh::{read_obj_positions, write_obj_positions};
 use helmcap::sink::read_usda_sequence;
 
-use super::{DatasetArgs, builtin_params};
+use super::DatasetArgs;
 
 /// Arguments of `helmcap enhance`.
 #[derive(Debug, clap::Args)]
@@ -37,63 +37,6 @@ pub struct EnhanceArgs {
     /// database's size, so a file in metres read as millimetres is refused.
     #[arg(long, value_enum, default_value_t = super::MeshUnits::Mm)]
     pub units: super::MeshUnits,
-}
-
-/// Onsets of the built-in actor's enhancement database (see
-/// [`Actor::performance_dataset`]): each expression at a quarter, half and three quarters
-/// of its weight joins the full-weight shapes. In the validation (`tests/enhance_validation.rs`)
-/// this recovers 49 % of the high-frequency error instead of 41 %, for four times the
-/// precomputation.
-const BUILTIN_ONSETS: [f64; 3] = [0.25, 0.5, 0.75];
-
-/// Loads the database and precomputes the enhancer; the built-in actor uses its labelled
-/// regions and its performance database (expressions along their onsets), other datasets
-/// regions derived from their motion and their shapes as they are. `onsets: false` keeps
-/// the built-in actor's full-weight shapes only (what `retime` uses).
-pub fn build_enhancer(
-    database: &str,
-    params: &EnhanceParams,
-    onsets: bool,
-) -> anyhow::Result<(Dataset, Enhancer)> {
-    let args = DatasetArgs::new(database.to_string());
-    if let Some(actor_params) = builtin_params(database)? {
-        let actor = Actor::new(&actor_params).context("building the built-in actor")?;
-        let dataset = if onsets {
-            actor.performance_dataset(&BUILTIN_ONSETS)
-        } else {
-            actor.to_dataset()
-        };
-        let regions = VoluntaryRegions::from_actor(&actor);
-        let enhancer = Enhancer::with_regions(&dataset, params, &regions)
-            .context("precomputing the enhancement database")?;
-        return Ok((dataset, enhancer));
-    }
-    let dataset = args.load()?;
-    let manifest = helmcap::dataset::Manifest::read(Path::new(database))
-        .with_context(|| format!("reading {database}"))?;
-    let enhancer = match manifest.regions {
-        Some(cores) => {
-            tracing::info!("voluntary regions from the manifest's [regions]");
-            Enhancer::with_regions(&dataset, params, &VoluntaryRegions { cores })
-        }
-        None => Enhancer::new(&dataset, params),
-    }
-    .context("precomputing the enhancement database")?;
-    Ok((dataset, enhancer))
-}
-
-/// Reads an [`EnhanceParams`] TOML file, or the defaults.
-pub fn read_params(path: Option<&Path>) -> anyhow::Result<EnhanceParams> {
-    let params: EnhanceParams = match path {
-        Some(p) => {
-            let text =
-                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?
-        }
-        None => EnhanceParams::default(),
-    };
-    params.validate()?;
-    Ok(params)
 }
 
 /// The OBJ files of `dir`, sorted by name.

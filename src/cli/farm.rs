@@ -6,8 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use helmcap::capture::{Replay, ReplayParams};
 use helmcap::farm::{JobSpec, JobTake, ReplayOption, chunk_ranges, find_chunks, merge_chunks};
-
-use super::take::Export;
+use helmcap::take::{DEFAULT_SOLVE_KEYFRAMES, Export};
 
 /// `helmcap farm` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -144,14 +143,14 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
     // The stages' memory: labeling restarts where each chunk's warm-up starts
     // (--relabel-every), the solve forgets its preference every keyframe interval,
     // gap-fill confidence reaches back 4 half-lives of 15 frames.
-    let memory = 60usize.max(super::take::DEFAULT_SOLVE_KEYFRAMES);
+    let memory = 60usize.max(DEFAULT_SOLVE_KEYFRAMES);
     if args.overlap < memory {
         bail!(
             "--overlap {}: a chunk needs at least {memory} frames of warm-up to write what a \
              single pass writes (gap-fill confidence looks back {memory} frames, the solve \
              forgets its preference every {} frames)",
             args.overlap,
-            super::take::DEFAULT_SOLVE_KEYFRAMES
+            DEFAULT_SOLVE_KEYFRAMES
         );
     }
     let mut takes = Vec::new();
@@ -189,7 +188,7 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
         });
     } else {
         // Checked here, not on the farm.
-        super::builtin_params(&args.dataset)?.with_context(|| {
+        helmcap::dataset::builtin_params(&args.dataset)?.with_context(|| {
             format!(
                 "--dataset {}: neither a file nor builtin[:SEED]",
                 args.dataset

@@ -11,7 +11,7 @@ use helmcap::camera::StereoRig;
 use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
 use helmcap::pipeline::GroundTruth;
 
-use super::take::{TakeArgs, load_profile, print_summary, stop_flag};
+use super::take::{TakeArgs, print_summary, stop_flag};
 
 /// Arguments of `helmcap live`.
 #[derive(Debug, clap::Args)]
@@ -103,15 +103,16 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
     let live_config = super::record::load_config(&args.config, args.sync_port.as_deref())?;
     // A bad profile is an error before anything slow starts.
-    let profile = load_profile(args.take.profile.as_deref())?;
-    let take = args.take.load_dataset()?;
+    let spec = args.take.spec();
+    let profile = spec.load_profile(None)?;
+    let take = spec.load()?;
     let ground_truth = match &args.test_source {
         Some(session) => GroundTruth::load(session, &take.layout)
             .with_context(|| format!("reading ground truth of {}", session.display()))?
             .map(Arc::new),
         None => None,
     };
-    let dense = args.take.dense_stages(&take)?;
+    let dense = spec.dense_stages(&take)?;
 
     // One take per folder, one run per folder (held until the take is written).
     let _take_dir = helmcap::sink::TakeDir::claim(&args.out, args.take.overwrite)?;
@@ -126,7 +127,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
         .rig()
         .cloned()
         .context("the live config names no calibration (`calibration = ...`)")?;
-    let mut config = args.take.pipeline_config(&take, rig, &profile);
+    let mut config = spec.pipeline_config(&take, rig, &profile);
     config.take.name = "live".into();
     config.take.timecode_rate = Some(source.timecode_rate());
     config.take.frame_count = args.frames;
@@ -137,7 +138,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     }
 
     let out = &args.out;
-    let (sinks, mut outputs) = args.take.sinks(&mut config, &take, out)?;
+    let (sinks, mut outputs) = spec.sinks(&mut config, &take, out)?;
     outputs.push(out.join("live_stats.json"));
     let stats = Arc::new(Mutex::new(source.stats()));
     let limited = LimitedLive {

@@ -25,11 +25,11 @@ mod synth;
 mod take;
 mod view;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use helmcap::dataset::{Dataset, LoadOptions, actor};
+use helmcap::dataset::{Dataset, DatasetSpec};
 
 /// helmcap: facial performance capture from helmet-mounted stereo cameras.
 #[derive(Debug, Parser)]
@@ -166,20 +166,18 @@ impl DatasetArgs {
         }
     }
 
+    /// The dataset and cache options these options name.
+    pub fn spec(&self) -> DatasetSpec {
+        DatasetSpec {
+            name: self.dataset.clone(),
+            no_cache: self.no_cache,
+            cache_dir: self.cache_dir.clone(),
+        }
+    }
+
     /// Loads the dataset, with a progress bar for manifests.
     pub fn load(&self) -> anyhow::Result<Dataset> {
-        if let Some(params) = builtin_params(&self.dataset)? {
-            let actor = actor::Actor::new(&params).context("building the built-in actor")?;
-            return Ok(actor.to_dataset());
-        }
-        let path = Path::new(&self.dataset);
-        let options = LoadOptions {
-            cache_dir: self.cache_dir.clone(),
-            no_cache: self.no_cache,
-            progress: true,
-        };
-        helmcap::dataset::load_dataset(path, &options)
-            .with_context(|| format!("loading dataset {}", path.display()))
+        Ok(self.spec().load()?)
     }
 }
 
@@ -227,21 +225,5 @@ impl MeshUnits {
         helmcap::dataset::check_mesh_scale(&mm, reference)
             .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
         Ok(mm)
-    }
-}
-
-/// The built-in actor's parameters when `s` names it: `builtin` is the standard actor,
-/// `builtin:SEED` another identity.
-fn builtin_params(s: &str) -> anyhow::Result<Option<actor::ActorParams>> {
-    match s.strip_prefix("builtin") {
-        Some("") => Ok(Some(actor::ActorParams::default())),
-        Some(rest) => match rest.strip_prefix(':') {
-            Some(seed) => seed
-                .parse()
-                .map(|seed| Some(actor::ActorParams::from_seed(seed)))
-                .with_context(|| format!("builtin actor seed {seed:?} is not a whole number")),
-            None => Ok(None),
-        },
-        None => Ok(None),
     }
 }

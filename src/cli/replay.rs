@@ -15,7 +15,7 @@ use helmcap::pipeline::{
 use helmcap::sink::TakeDir;
 use helmcap::track::CaptureProfile;
 
-use super::take::{TakeArgs, load_profile, print_summary, stop_flag};
+use super::take::{TakeArgs, print_summary, stop_flag};
 
 /// Arguments of `helmcap replay`.
 #[derive(Debug, clap::Args)]
@@ -183,10 +183,11 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     let info = source.info().clone();
     // One take per folder, one run per folder (held until the take is written).
     let _take = TakeDir::claim(&args.out, args.take.overwrite)?;
-    let take = args.take.load_dataset()?;
-    let profile = load_profile(args.take.profile.as_deref().or(info.profile.as_deref()))?;
+    let spec = args.take.spec();
+    let take = spec.load()?;
+    let profile = spec.load_profile(info.profile.as_deref())?;
     source.set_gray_conversion(profile.gray_conversion());
-    let mut config = args.take.pipeline_config(&take, rig, &profile);
+    let mut config = spec.pipeline_config(&take, rig, &profile);
     let take_name = args
         .session
         .file_name()
@@ -209,7 +210,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     };
     let settings = settings_fingerprint(args, &config, &take.dataset, &profile)?;
     let markers: Vec<String> = take.layout.markers.iter().map(|m| m.name.clone()).collect();
-    if let Some(stages) = args.take.dense_stages(&take)? {
+    if let Some(stages) = spec.dense_stages(&take)? {
         stages.install(&mut config, &take.dataset);
     }
     config.ground_truth = GroundTruth::load(&args.session, &take.layout)
@@ -217,7 +218,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .map(Arc::new);
 
     let out = &args.out;
-    let (mut sinks, mut outputs) = args.take.sinks(&mut config, &take, out)?;
+    let (mut sinks, mut outputs) = spec.sinks(&mut config, &take, out)?;
     if !args.quiet {
         let bar = indicatif::ProgressBar::new(config.take.frame_count.unwrap_or(0) as u64);
         bar.set_style(
@@ -298,7 +299,7 @@ fn settings_fingerprint(
     let lgi = if args.take.no_solve {
         None
     } else {
-        Some(args.take.solve_stage.lgi_params()?)
+        Some(args.take.solve_stage.spec().lgi_params()?)
     };
     fp.add(
         format!(

@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use helmcap::dataset::actor::Actor;
-use helmcap::enhance::{Retimer, Sequence, builtin_sequences};
+use helmcap::dataset::builtin_params;
+use helmcap::enhance::{Retimer, Sequence, build_enhancer, builtin_sequences, read_params};
 use helmcap::mesh::{read_obj_positions, write_obj_positions};
 
-use super::builtin_params;
-use super::enhance::{build_enhancer, obj_files, read_params};
+use super::enhance::obj_files;
 
 /// Frames per built-in actor sequence.
 const BUILTIN_SEQUENCE_FRAMES: usize = 24;

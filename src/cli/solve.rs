@@ -285,24 +285,11 @@ fn lgi_index(
     params: &LgiParams,
     args: &SolveArgs,
 ) -> anyhow::Result<Arc<LgiIndex>> {
-    let cache = (!args.no_index_cache && !args.dataset.no_cache).then(|| {
-        args.dataset
-            .cache_dir
-            .clone()
-            .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
-    });
-    lgi_index_cached(ds, layout, params, cache)
-}
-
-/// The LGI index of `ds` for `layout`: from the cache folder `cache_dir` (when given)
-/// when one was built with the same dataset, layout and parameters, else built (and
-/// cached there).
-pub fn lgi_index_cached(
-    ds: &Dataset,
-    layout: &MarkerLayout,
-    params: &LgiParams,
-    cache_dir: Option<PathBuf>,
-) -> anyhow::Result<Arc<LgiIndex>> {
-    let (index, _) = helmcap::lgi::cache::load_or_build(ds, layout, params, cache_dir.as_deref())?;
+    let cache = if args.no_index_cache {
+        None
+    } else {
+        args.dataset.spec().cache_folder()
+    };
+    let (index, _) = helmcap::lgi::cache::load_or_build(ds, layout, params, cache.as_deref())?;
     Ok(index)
 }

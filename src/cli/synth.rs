@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use helmcap::dataset::MarkerLayout;
 use helmcap::dataset::actor;
+use helmcap::dataset::{MarkerLayout, builtin_params};
 use helmcap::synth::target::{CalibrationTarget, TargetParams, render_targets};
 use helmcap::synth::{
     AnimationParams, ColorParams, Performer, Polarity, ProfileOutput, SynthParams, animation,
@@ -13,7 +13,7 @@ use helmcap::synth::{
 };
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{DatasetArgs, builtin_params};
+use super::DatasetArgs;
 
 /// Arguments of `helmcap synth`.
 #[derive(Debug, clap::Args)]
@@ -156,10 +156,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
     };
     let layout = match (&args.markers, &performer) {
         (Some(p), _) => MarkerLayout::read_csv(p)?,
-        (None, Performer::Actor(_)) => MarkerLayout::parse_csv(
-            include_str!("../../configs/markers/builtin-actor.csv"),
-            "builtin-actor.csv",
-        )?,
+        (None, Performer::Actor(_)) => MarkerLayout::builtin_actor()?,
         (None, Performer::Dataset(_)) => {
             anyhow::bail!("--markers is required with a dataset manifest")
         }

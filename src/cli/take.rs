@@ -1,22 +1,14 @@
-//! What `replay` and `live` share to assemble a take: the options common to both (one
-//! flattened clap struct, [`TakeArgs`]), the dataset and layout, the capture profile, the
-//! dense stages, the file sinks and exports, the stop flag and the end-of-take summary.
+//! The options `replay` and `live` share (one flattened clap struct, [`TakeArgs`]), read
+//! into the library's [`TakeSpec`] that assembles the take; the stop flag and the
+//! end-of-take summary.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
-use anyhow::{Context, bail};
-use helmcap::dataset::{Dataset, MarkerLayout};
-use helmcap::enhance::Enhancer;
-use helmcap::lgi::LgiParams;
-use helmcap::pipeline::{Metrics, PipelineConfig, Sink};
-use helmcap::sink::{C3dSink, CsvSink, MeshFormat, MeshSequenceSink, MetricsSink, UsdSink};
-use helmcap::solve::Solver;
-use helmcap::track::CaptureProfile;
-use nalgebra::Point3;
-
-use super::{DatasetArgs, builtin_params};
+use helmcap::dataset::DatasetSpec;
+use helmcap::pipeline::Metrics;
+use helmcap::take::{DEFAULT_SOLVE_KEYFRAMES, Export, SolveSpec, TakeSpec};
 
 /// The options of a take that `replay` and `live` share (flattened into both).
 #[derive(Debug, Clone, clap::Args)]
@@ -88,145 +80,25 @@ impl Default for TakeArgs {
     }
 }
 
-/// The sinks of a take and the files they write (for the summary).
-pub type TakeSinks = (Vec<Box<dyn Sink>>, Vec<PathBuf>);
-
-/// The dataset a take is solved with, and everything loaded from it.
-pub struct TakeDataset {
-    /// The dataset.
-    pub dataset: Dataset,
-    /// Its marker layout (checked against it).
-    pub layout: Arc<MarkerLayout>,
-    /// Each marker's neutral position, head frame, mm.
-    pub neutral_markers: Vec<Point3<f64>>,
-}
-
 impl TakeArgs {
-    /// The dataset options (`--dataset`, `--no-cache`, `--cache-dir`).
-    pub fn dataset_args(&self) -> DatasetArgs {
-        DatasetArgs {
-            dataset: self.dataset.clone(),
-            no_cache: self.no_cache,
-            cache_dir: self.cache_dir.clone(),
+    /// The take these options describe.
+    pub fn spec(&self) -> TakeSpec {
+        TakeSpec {
+            dataset: DatasetSpec {
+                name: self.dataset.clone(),
+                no_cache: self.no_cache,
+                cache_dir: self.cache_dir.clone(),
+            },
+            markers: self.markers.clone(),
+            profile: self.profile.clone(),
+            no_solve: self.no_solve,
+            enhance: self.enhance,
+            exports: self.export.clone(),
+            solve: self.solve_stage.spec(),
+            rig: self.rig_stage.spec(),
+            queue: self.queue,
+            viewer: self.view.spec(self.rrd.clone()),
         }
-    }
-
-    /// Loads the dataset and the layout (checked against each other).
-    ///
-    /// # Errors
-    /// Unreadable dataset or layout, or a layout that does not fit the dataset.
-    pub fn load_dataset(&self) -> anyhow::Result<TakeDataset> {
-        let (dataset, layout, neutral_markers) =
-            load_dataset_and_layout(&self.dataset_args(), self.markers.as_deref())?;
-        Ok(TakeDataset {
-            dataset,
-            layout,
-            neutral_markers,
-        })
-    }
-
-    /// The dense stages the options ask for (see [`dense_stages`]).
-    ///
-    /// # Errors
-    /// As [`dense_stages`].
-    pub fn dense_stages(&self, take: &TakeDataset) -> anyhow::Result<Option<DenseStages>> {
-        dense_stages(
-            &take.dataset,
-            &take.layout,
-            &self.dataset_args(),
-            self.no_solve,
-            self.enhance,
-            &self.export,
-            &self.solve_stage,
-        )
-    }
-
-    /// The pipeline configuration of a take on `rig` with `profile`: the capture settings,
-    /// the expression templates for acquisition and the channel size.
-    pub fn pipeline_config(
-        &self,
-        take: &TakeDataset,
-        rig: helmcap::camera::StereoRig,
-        profile: &CaptureProfile,
-    ) -> PipelineConfig {
-        let mut config = PipelineConfig::new(
-            take.layout.clone(),
-            Arc::new(take.neutral_markers.clone()),
-            rig,
-        );
-        config.track.detect = profile.detect_params(Some(&config.rig));
-        config.track.label = profile.label_params();
-        config.track.expression_templates =
-            Arc::new(take.layout.expression_templates(&take.dataset));
-        config.channels.capacity = self.queue;
-        config
-    }
-
-    /// The sinks of a take written into `out`: the file sinks and exports, the rig stage
-    /// and its animation sink when asked for (switched on in `config`), the viewer and
-    /// recording; and the files they write, for the summary.
-    ///
-    /// # Errors
-    /// A rig that cannot be loaded, a rig with `--no-solve`, a viewer that cannot start.
-    pub fn sinks(
-        &self,
-        config: &mut PipelineConfig,
-        take: &TakeDataset,
-        out: &Path,
-    ) -> anyhow::Result<TakeSinks> {
-        let (mut sinks, mut outputs) = file_sinks(out, &self.export);
-        if let Some((sink, files)) = self.rig_stage.install(
-            config,
-            &take.dataset,
-            &self.dataset_args(),
-            self.export.contains(&Export::LivelinkCsv),
-            self.export.contains(&Export::UsdSkel),
-            out,
-        )? {
-            if self.no_solve {
-                bail!(
-                    "--no-solve writes no meshes to solve a rig from: drop --rig and livelink-csv"
-                );
-            }
-            sinks.push(sink);
-            outputs.extend(files);
-        }
-        self.view
-            .sinks(self.rrd.as_deref(), &mut sinks, &mut outputs)?;
-        Ok((sinks, outputs))
-    }
-}
-
-/// An export format besides the CSV files and metrics (which are always written).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Export {
-    /// One OBJ per frame: `mesh/frame_NNNNNN.obj` (neutral topology and UVs, mm).
-    Obj,
-    /// One binary PLY per frame: `mesh/frame_NNNNNN.ply`.
-    Ply,
-    /// One USD file with time-sampled points: `mesh.usda`.
-    Usd,
-    /// The labeled bundles as C3D: `bundles.c3d`.
-    C3d,
-    /// Unreal's Live Link Face CSV of the rig weights: `livelink.csv` (rig: `--rig`, else
-    /// the dataset).
-    LivelinkCsv,
-    /// UsdSkel blend-shape animation of the rig weights: `face_skel.usda` (rig: `--rig`,
-    /// else the dataset).
-    UsdSkel,
-}
-
-/// The layout for `dataset` (a path, or the built-in actor's shipped layout).
-pub fn load_layout(dataset: &str, markers: Option<&Path>) -> anyhow::Result<MarkerLayout> {
-    match markers {
-        Some(p) => {
-            MarkerLayout::read_csv(p).with_context(|| format!("reading markers {}", p.display()))
-        }
-        None if builtin_params(dataset)?.is_some() => Ok(MarkerLayout::parse_csv(
-            include_str!("../../configs/markers/builtin-actor.csv"),
-            "builtin-actor.csv",
-        )?),
-        None => bail!("--markers is required with a dataset manifest"),
     }
 }
 
@@ -248,17 +120,6 @@ pub fn stop_flag() -> Arc<AtomicBool> {
         flag
     })
     .clone()
-}
-
-/// The capture profile at `path`, or the built-in defaults.
-///
-/// # Errors
-/// An unreadable or invalid profile (the message names the file and key).
-pub fn load_profile(path: Option<&Path>) -> anyhow::Result<CaptureProfile> {
-    Ok(match path {
-        Some(p) => CaptureProfile::load(p)?,
-        None => CaptureProfile::default(),
-    })
 }
 
 /// Prints the end-of-take summary.
@@ -326,46 +187,6 @@ pub fn print_summary(m: &Metrics, outputs: &[PathBuf]) {
     println!("wrote {}", files.join(", "));
 }
 
-/// The dataset and its marker layout (checked against each other), and the markers'
-/// positions on the neutral: what every pipeline run starts from.
-///
-/// # Errors
-/// Unreadable dataset or layout, or a layout that does not fit the dataset.
-pub fn load_dataset_and_layout(
-    dataset: &DatasetArgs,
-    markers: Option<&Path>,
-) -> anyhow::Result<(Dataset, Arc<MarkerLayout>, Vec<Point3<f64>>)> {
-    let layout = load_layout(&dataset.dataset, markers)?;
-    let ds = dataset.load()?;
-    layout
-        .validate_for(&ds)
-        .with_context(|| format!("the marker layout does not fit {}", ds.name))?;
-    let neutral_markers = layout
-        .markers
-        .iter()
-        .map(|m| ds.neutral.positions[m.vertex as usize])
-        .collect();
-    Ok((ds, Arc::new(layout), neutral_markers))
-}
-
-/// The dense stages of a run: LGI and, optionally, detail enhancement.
-pub struct DenseStages {
-    solver: Solver,
-    enhancer: Option<Arc<Enhancer>>,
-    keyframes: usize,
-}
-
-impl DenseStages {
-    /// Switches the stages on in `config` (with the dataset's neutral and face vertices).
-    pub fn install(self, config: &mut PipelineConfig, ds: &Dataset) {
-        config.solve.solver = Some(self.solver);
-        config.solve.keyframe_interval = self.keyframes;
-        config.solve.neutral = Some(Arc::new(ds.neutral.clone()));
-        config.solve.face_vertices = Some(ds.face_vertices.clone());
-        config.enhancer = self.enhancer;
-    }
-}
-
 /// Settings of the pipeline's dense solve (`replay`, `live`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct SolveStageArgs {
@@ -386,9 +207,6 @@ pub struct SolveStageArgs {
     pub solve_keyframes: usize,
 }
 
-/// Default of `--solve-keyframes`: half a second at 60 fps.
-pub const DEFAULT_SOLVE_KEYFRAMES: usize = 30;
-
 impl Default for SolveStageArgs {
     fn default() -> Self {
         Self {
@@ -400,132 +218,12 @@ impl Default for SolveStageArgs {
 }
 
 impl SolveStageArgs {
-    /// The LGI parameters of the solve stage.
-    ///
-    /// The default is [`LgiParams::noisy`]: bundles triangulated from the helmet cameras
-    /// carry a few tenths of a millimetre of noise, and forcing the surface through each one
-    /// (LGI's exact setting, §5 of the paper) spreads that noise over the face. On the demo
-    /// session (bundles 0.244 mm RMS against ground truth) the mesh error drops from
-    /// 0.383 mm RMS (mean 0.239 mm) to 0.136 mm (mean 0.054 mm).
-    ///
-    /// # Errors
-    /// An unreadable file, TOML that is not LGI parameters, or a value out of range.
-    pub fn lgi_params(&self) -> anyhow::Result<LgiParams> {
-        let base = if self.exact_bundles {
-            LgiParams::default()
-        } else {
-            LgiParams::noisy()
-        };
-        let params = match &self.lgi_params {
-            None => base,
-            Some(path) => {
-                let text = std::fs::read_to_string(path)
-                    .with_context(|| format!("reading {}", path.display()))?;
-                let file: toml::Table = toml::from_str(&text)
-                    .with_context(|| format!("{}: not a TOML table", path.display()))?;
-                let mut merged = toml::Table::try_from(base)
-                    .context("writing the default LGI parameters as TOML")?;
-                merged.extend(file);
-                merged
-                    .try_into::<LgiParams>()
-                    .with_context(|| format!("{}: not LGI parameters", path.display()))?
-            }
-        };
-        params.validate()?;
-        Ok(params)
-    }
-}
-
-/// Builds the dense stages a run asks for: the LGI solver (its index from the cache unless
-/// the dataset options say not to) and, with `enhance`, the enhancer. `None` with
-/// `no_solve`, which writes no meshes.
-///
-/// # Errors
-/// `--no-solve` with `--enhance` or a mesh export; an index or enhancer that cannot be
-/// built.
-pub fn dense_stages(
-    ds: &Dataset,
-    layout: &MarkerLayout,
-    dataset: &DatasetArgs,
-    no_solve: bool,
-    enhance: bool,
-    exports: &[Export],
-    solve_stage: &SolveStageArgs,
-) -> anyhow::Result<Option<DenseStages>> {
-    if no_solve {
-        if enhance || !exports.iter().all(|e| *e == Export::C3d) {
-            bail!("--no-solve writes no meshes: drop --enhance and mesh exports");
+    /// The solve settings these options ask for.
+    pub fn spec(&self) -> SolveSpec {
+        SolveSpec {
+            exact_bundles: self.exact_bundles,
+            lgi_params: self.lgi_params.clone(),
+            keyframes: self.solve_keyframes,
         }
-        return Ok(None);
     }
-    let params = solve_stage.lgi_params()?;
-    let index = super::solve::lgi_index_cached(
-        ds,
-        layout,
-        &params,
-        (!dataset.no_cache).then(|| {
-            dataset
-                .cache_dir
-                .clone()
-                .unwrap_or_else(helmcap::dataset::cache::default_cache_dir)
-        }),
-    )?;
-    let solver = Solver::lgi(index, &params)?;
-    let enhancer = if enhance {
-        let params = super::enhance::read_params(None)?;
-        let (_, enhancer) = super::enhance::build_enhancer(&dataset.dataset, &params, true)?;
-        Some(Arc::new(enhancer))
-    } else {
-        None
-    };
-    Ok(Some(DenseStages {
-        solver,
-        enhancer,
-        keyframes: solve_stage.solve_keyframes,
-    }))
-}
-
-/// The file sinks every pipeline run writes into `out` (CSV and metrics), plus one per
-/// distinct `--export`, and the paths they write (for the summary).
-pub fn file_sinks(out: &Path, exports: &[Export]) -> TakeSinks {
-    let mut outputs = vec![
-        out.join("bundles.csv"),
-        out.join("head_pose.csv"),
-        out.join("tracks.csv"),
-        out.join("metrics.json"),
-    ];
-    let mut sinks: Vec<Box<dyn Sink>> = vec![
-        Box::new(CsvSink::new(out)),
-        Box::new(MetricsSink::new(&out.join("metrics.json"))),
-    ];
-    let mut seen: Vec<Export> = Vec::new();
-    for &e in exports {
-        if seen.contains(&e) {
-            continue;
-        }
-        seen.push(e);
-        let (sink, path): (Box<dyn Sink>, PathBuf) = match e {
-            Export::Obj => (
-                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Obj)),
-                out.join("mesh/frame_NNNNNN.obj"),
-            ),
-            Export::Ply => (
-                Box::new(MeshSequenceSink::new(&out.join("mesh"), MeshFormat::Ply)),
-                out.join("mesh/frame_NNNNNN.ply"),
-            ),
-            Export::Usd => (
-                Box::new(UsdSink::new(&out.join("mesh.usda"))),
-                out.join("mesh.usda"),
-            ),
-            Export::C3d => (
-                Box::new(C3dSink::new(&out.join("bundles.c3d"))),
-                out.join("bundles.c3d"),
-            ),
-            // Written by the animation sink (`RigStageArgs::sink`).
-            Export::LivelinkCsv | Export::UsdSkel => continue,
-        };
-        sinks.push(sink);
-        outputs.push(path);
-    }
-    (sinks, outputs)
 }

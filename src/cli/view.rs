@@ -1,16 +1,18 @@
 //! Rerun options of the commands that run the pipeline (`--viewer`, image rate and size;
-//! `--rrd` is the replay's own), the sinks they open, and `helmcap bench rerun`.
+//! `--rrd` is the replay's own), read into the library's `ViewerSpec`, and `helmcap bench
+//! rerun`.
 
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::GrayImage;
 use helmcap::numeric::upper_median;
-use helmcap::pipeline::Sink;
 use helmcap::sink::rerun::{
     BundlePoint, MarkerPixel, MeshTopology, RerunFrame, RerunParams, RerunSession, RerunSink,
     RerunTarget,
 };
+use helmcap::take::ViewerSpec;
 use helmcap::timecode::{Timecode, TimecodeRate};
 use nalgebra::{Isometry3, Point2, Point3};
 
@@ -75,52 +77,19 @@ impl ViewerArgs {
         }
     }
 
-    /// A sink writing the recording to `path`.
-    ///
-    /// # Errors
-    /// Bad options, or the file cannot be created.
-    pub fn file_sink(&self, path: &std::path::Path) -> anyhow::Result<Box<dyn Sink>> {
-        let sink = RerunSink::new(RerunTarget::File(path.to_path_buf()), self.params())
-            .with_context(|| format!("--rrd {}", path.display()))?;
-        Ok(Box::new(sink))
-    }
-
-    /// The rerun sinks of a pipeline run: the `.rrd` file `rrd` (added to `outputs`) and
-    /// the viewer `--viewer` asks for.
-    ///
-    /// # Errors
-    /// Bad options, the file cannot be created, or the viewer cannot be started or reached.
-    pub fn sinks(
-        &self,
-        rrd: Option<&std::path::Path>,
-        sinks: &mut Vec<Box<dyn Sink>>,
-        outputs: &mut Vec<std::path::PathBuf>,
-    ) -> anyhow::Result<()> {
-        if let Some(rrd) = rrd {
-            sinks.push(self.file_sink(rrd)?);
-            outputs.push(rrd.to_path_buf());
+    /// The rerun sinks these options ask for, with the recording `rrd` (`--rrd`).
+    pub fn spec(&self, rrd: Option<PathBuf>) -> ViewerSpec {
+        ViewerSpec {
+            rrd,
+            viewer: self.viewer.as_ref().map(|v| match v {
+                ViewerArg::Spawn => RerunTarget::Spawn,
+                ViewerArg::Connect(addr) => RerunTarget::Connect(
+                    addr.clone()
+                        .unwrap_or_else(|| helmcap::sink::rerun::DEFAULT_VIEWER_URL.to_string()),
+                ),
+            }),
+            rerun: self.params(),
         }
-        if let Some(viewer) = self.viewer_sink()? {
-            sinks.push(viewer);
-        }
-        Ok(())
-    }
-
-    /// The viewer sink `--viewer` asks for, if any.
-    ///
-    /// # Errors
-    /// Bad options, or the viewer cannot be started or reached.
-    pub fn viewer_sink(&self) -> anyhow::Result<Option<Box<dyn Sink>>> {
-        let target = match &self.viewer {
-            None => return Ok(None),
-            Some(ViewerArg::Spawn) => RerunTarget::Spawn,
-            Some(ViewerArg::Connect(addr)) => RerunTarget::Connect(
-                addr.clone()
-                    .unwrap_or_else(|| helmcap::sink::rerun::DEFAULT_VIEWER_URL.to_string()),
-            ),
-        };
-        let sink = RerunSink::new(target, self.params()).context("--viewer")?;
-        Ok(Some(Box::new(sink)))
     }
 }
 

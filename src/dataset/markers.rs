@@ -70,6 +70,17 @@ impl MarkerLayout {
         self.markers.iter().position(|m| m.name == name)
     }
 
+    /// The layout shipped for the built-in actor (`configs/markers/builtin-actor.csv`).
+    ///
+    /// # Errors
+    /// As [`MarkerLayout::parse_csv`] (none for the shipped file).
+    pub fn builtin_actor() -> Result<Self, MarkerError> {
+        Self::parse_csv(
+            include_str!("../../configs/markers/builtin-actor.csv"),
+            "builtin-actor.csv",
+        )
+    }
+
     /// Reads a layout CSV.
     ///
     /// # Errors

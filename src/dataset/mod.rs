@@ -1,5 +1,6 @@
 //! The actor's dataset of face shapes: manifest loading, unit conversion, caching, jaw
-//! skinning, marker layouts and the built-in synthetic actor.
+//! skinning, marker layouts and the built-in synthetic actor; a dataset named by a user
+//! (a manifest or `builtin[:SEED]`, [`DatasetSpec`]).
 //!
 //! A [`Dataset`] is the neutral mesh plus named shapes sharing its topology, all in
 //! millimetres in the head frame (the neutral's frame). It may carry a [`JawRig`] and per
@@ -13,11 +14,13 @@ pub mod cache;
 pub mod manifest;
 pub mod markers;
 pub mod scale_check;
+pub mod spec;
 
 pub use cache::{LoadOptions, load_dataset};
 pub use manifest::{DatasetError, Manifest, Units, write_dataset};
 pub use markers::{Marker, MarkerLayout};
 pub use scale_check::{ScaleMismatch, check_mesh_scale};
+pub use spec::{DatasetLoadError, DatasetSpec, builtin_params};
 
 use std::ops::RangeInclusive;
 

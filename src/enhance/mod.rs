@@ -12,10 +12,12 @@
 //! encoding), [`frequency`] (low-pass filter, Eq. 1), [`poisson`] (reconstruction),
 //! [`regions`] (voluntary regions, patches); the convex weights of Eq. 2-3 are
 //! [`crate::numeric::convex_weights`],
-//! [`retime`] (sequence projection and retiming, §6).
+//! [`retime`] (sequence projection and retiming, §6); [`database`]: the enhancer of a named
+//! dataset and the parameters file.
 //!
 //! Depends on [`crate::mesh`], [`crate::dataset`] and [`crate::align`].
 
+pub mod database;
 pub mod deformation_gradient;
 pub mod enhancer;
 pub mod frequency;
@@ -24,6 +26,7 @@ pub mod regions;
 pub mod retime;
 
 pub use crate::numeric::convex_weights;
+pub use database::{BUILTIN_ONSETS, EnhanceSetupError, build_enhancer, read_params};
 pub use deformation_gradient::{
     PolarCode, decode_polar, deformation_gradients, encode_polar, polar_decomposition,
     rest_frame_inverses, triangle_frame,
