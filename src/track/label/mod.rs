@@ -753,12 +753,22 @@ impl Labeler {
             self.prev_pose = if steps == 1 { self.pose } else { None };
             self.pose = Some(pose);
             self.last_frame = Some(frame);
-            self.rois = self.compute_rois();
+            // Next frame's predictions with the final pass's gates (the ROI adds the pose
+            // pass's extra).
+            let preds = self
+                .predicted_pose(1)
+                .map(|pose| self.predictions(&pose, 1, 0.0));
             let steady = stats.labeled as f64 >= WINDOWS_KEEP_SHARE * self.last_labeled as f64;
-            self.windows = if self.params.search_windows && steady {
-                self.compute_windows()
-            } else {
-                [Vec::new(), Vec::new()]
+            (self.rois, self.windows) = match preds {
+                Some(preds) => (
+                    self.compute_rois(&preds),
+                    if self.params.search_windows && steady {
+                        self.compute_windows(&preds)
+                    } else {
+                        [Vec::new(), Vec::new()]
+                    },
+                ),
+                None => ([None, None], [Vec::new(), Vec::new()]),
             };
         }
         self.last_labeled = stats.labeled;
@@ -769,13 +779,8 @@ impl Labeler {
     }
 
     /// One search window per marker and camera around its predicted pixel next frame (see
-    /// [`Labeler::predicted_windows`]).
-    fn compute_windows(&self) -> [Vec<Rect>; 2] {
-        let Some(pose) = self.predicted_pose(1) else {
-            return [Vec::new(), Vec::new()];
-        };
-        // The final pass's gates (see `predicted_windows`).
-        let preds = self.predictions(&pose, 1, 0.0);
+    /// [`Labeler::predicted_windows`]), from the predictions with the final pass's gates.
+    fn compute_windows(&self, preds: &[Prediction]) -> [Vec<Rect>; 2] {
         let hi = self
             .params
             .dot_size_ratio
@@ -794,22 +799,16 @@ impl Labeler {
                     let q = pr.pixels[c]?;
                     let largest_dot = self.largest_dot_px(&pr.point, c, hi)? + pr.motion_px[c];
                     let g = pr.gate_px + 0.5 * largest_dot + self.params.window_margin_px;
-                    let x0 = (q.x - g).floor().clamp(0.0, w) as u32;
-                    let y0 = (q.y - g).floor().clamp(0.0, h) as u32;
-                    let x1 = ((q.x + g).ceil() + 1.0).clamp(0.0, w) as u32;
-                    let y1 = ((q.y + g).ceil() + 1.0).clamp(0.0, h) as u32;
-                    (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
+                    pixel_rect((q.x - g, q.y - g, q.x + g, q.y + g), w, h)
                 })
                 .collect()
         })
     }
 
-    /// Bounding boxes of the next frame's predicted marker pixels, grown by the margin.
-    fn compute_rois(&self) -> [Option<(u32, u32, u32, u32)>; 2] {
-        let Some(pose) = self.predicted_pose(1) else {
-            return [None, None];
-        };
-        let preds = self.predictions(&pose, 1, self.params.pose_pass_extra_gate_px);
+    /// Bounding boxes of the next frame's predicted marker pixels, grown by the pose pass's
+    /// gate and the margin (`preds` with the final pass's gates).
+    fn compute_rois(&self, preds: &[Prediction]) -> [Option<(u32, u32, u32, u32)>; 2] {
+        let grow = self.params.pose_pass_extra_gate_px + self.params.roi_margin_px;
         [0, 1].map(|c| {
             let cam = if c == 0 {
                 &self.rig.cam0
@@ -817,24 +816,28 @@ impl Labeler {
                 &self.rig.cam1
             };
             let mut bb: Option<(f64, f64, f64, f64)> = None;
-            for pr in &preds {
+            for pr in preds {
                 let Some(q) = pr.pixels[c] else { continue };
-                let g = pr.gate_px + self.params.roi_margin_px;
+                let g = pr.gate_px + grow;
                 let b = (q.x - g, q.y - g, q.x + g, q.y + g);
                 bb = Some(match bb {
                     None => b,
                     Some(a) => (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)),
                 });
             }
-            let (x0, y0, x1, y1) = bb?;
-            let (w, h) = (f64::from(cam.width_px), f64::from(cam.height_px));
-            let x0 = x0.floor().clamp(0.0, w) as u32;
-            let y0 = y0.floor().clamp(0.0, h) as u32;
-            let x1 = (x1.ceil() + 1.0).clamp(0.0, w) as u32;
-            let y1 = (y1.ceil() + 1.0).clamp(0.0, h) as u32;
-            (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
+            pixel_rect(bb?, f64::from(cam.width_px), f64::from(cam.height_px))
         })
     }
+}
+
+/// The whole pixels `(x0, y0, x1, y1)` (end exclusive) covering the box `b`, clipped to a
+/// `w × h` image; None when nothing is left.
+fn pixel_rect(b: (f64, f64, f64, f64), w: f64, h: f64) -> Option<Rect> {
+    let x0 = b.0.floor().clamp(0.0, w) as u32;
+    let y0 = b.1.floor().clamp(0.0, h) as u32;
+    let x1 = (b.2.ceil() + 1.0).clamp(0.0, w) as u32;
+    let y1 = (b.3.ceil() + 1.0).clamp(0.0, h) as u32;
+    (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
 }
 
 fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
