@@ -398,7 +398,7 @@ fn actor_noisy_preset_does_not_follow_the_noise() {
         .unwrap();
     let mut exact = LgiSolver::new(ds, layout, &LgiParams::default()).unwrap();
     let mut noisy = LgiSolver::new(ds, layout, &LgiParams::noisy()).unwrap();
-    let mut rng = helmcap::bench::solve::Rng::new(11);
+    let mut rng = helmcap::numeric::SplitMix64::new(11);
     let (mut e_exact, mut e_noisy, mut lid_noisy) = (0.0, 0.0, 0.0f64);
     let frames = 16;
     for f in 0..frames {
@@ -412,7 +412,7 @@ fn actor_noisy_preset_does_not_follow_the_noise() {
         let mut b = bundles_of(layout, &truth.positions, f);
         for p in b.positions.iter_mut().flatten() {
             for k in 0..3 {
-                p[k] += 0.3 * rng.normal();
+                p[k] += 0.3 * helmcap::numeric::standard_normal(&mut rng);
             }
         }
         let mean_error = |s: &mut LgiSolver| {

@@ -37,53 +37,26 @@ use super::host::{process_cpu_seconds, thread_cpu_seconds};
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout, Shape};
 use crate::lgi::{LgiParams, TemporalParams};
+use crate::numeric::{SplitMix64, standard_normal};
 use crate::solve::{Method, SolveParams, Solver};
 
-/// A small deterministic random generator (SplitMix64) with a Gaussian sampler.
-#[derive(Debug, Clone)]
-pub struct Rng(u64);
-
-impl Rng {
-    /// A generator from a seed.
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Uniform integer in `0..n` (`n > 0`).
-    pub fn below(&mut self, n: usize) -> usize {
-        (self.uniform() * n as f64) as usize % n.max(1)
-    }
-    /// Standard normal (Box–Muller).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
+/// A uniform integer in `0..n` (`n > 0`) from one uniform draw.
+pub fn below(rng: &mut SplitMix64, n: usize) -> usize {
+    (rng.next_f64() * n as f64) as usize % n.max(1)
 }
 
 /// Produces the ground-truth face (#V positions) of expression weights.
 pub type Evaluate<'a> = dyn Fn(&[f64]) -> Vec<Point3<f64>> + 'a;
 
 /// Random weights: 2–4 of `n` expressions at [0.3, 1].
-pub fn random_weights(rng: &mut Rng, n: usize) -> Vec<f64> {
+pub fn random_weights(rng: &mut SplitMix64, n: usize) -> Vec<f64> {
     let mut w = vec![0.0; n];
-    let k = 2 + rng.below(3);
+    let k = 2 + below(rng, 3);
     let mut chosen = 0;
     while chosen < k.min(n) {
-        let i = rng.below(n);
+        let i = below(rng, n);
         if w[i] == 0.0 {
-            w[i] = 0.3 + 0.7 * rng.uniform();
+            w[i] = 0.3 + 0.7 * rng.next_f64();
             chosen += 1;
         }
     }
@@ -92,7 +65,12 @@ pub fn random_weights(rng: &mut Rng, n: usize) -> Vec<f64> {
 
 /// A smooth animated sequence of `frames` weight vectors: random keys every `every`
 /// frames, eased (smoothstep) in between.
-pub fn animated_weights(rng: &mut Rng, n: usize, frames: usize, every: usize) -> Vec<Vec<f64>> {
+pub fn animated_weights(
+    rng: &mut SplitMix64,
+    n: usize,
+    frames: usize,
+    every: usize,
+) -> Vec<Vec<f64>> {
     let keys: Vec<Vec<f64>> = (0..frames / every + 2)
         .map(|k| {
             if k == 0 {
@@ -296,7 +274,7 @@ pub struct Take {
 pub fn actor_nonlinear_take(
     actor: &crate::dataset::actor::Actor,
     layout: &MarkerLayout,
-    rng: &mut Rng,
+    rng: &mut SplitMix64,
     frames: usize,
 ) -> Take {
     let names = actor.expression_names();
@@ -319,21 +297,21 @@ pub fn actor_nonlinear_take(
     for f in 0..frames {
         let mut w = vec![0.0; names.len()];
         if let Some(j) = jaw_open {
-            w[j] = 0.2 + 0.7 * rng.uniform();
+            w[j] = 0.2 + 0.7 * rng.next_f64();
         }
         if f % 2 == 1
-            && let Some(side) = if rng.uniform() < 0.5 {
+            && let Some(side) = if rng.next_f64() < 0.5 {
                 jaw_left
             } else {
                 jaw_right
             }
         {
-            w[side] = 0.6 * rng.uniform();
+            w[side] = 0.6 * rng.next_f64();
         }
         if !pairs.is_empty() {
-            let (a, b) = pairs[rng.below(pairs.len())];
-            w[a] = w[a].max(0.5 + 0.5 * rng.uniform());
-            w[b] = w[b].max(0.5 + 0.5 * rng.uniform());
+            let (a, b) = pairs[below(rng, pairs.len())];
+            w[a] = w[a].max(0.5 + 0.5 * rng.next_f64());
+            w[b] = w[b].max(0.5 + 0.5 * rng.next_f64());
         }
         truth.push(actor.evaluate(&w).positions);
     }
@@ -352,7 +330,7 @@ pub fn actor_nonlinear_take(
 fn sample_bundles(
     layout: &MarkerLayout,
     truth: &[Vec<Point3<f64>>],
-    rng: &mut Rng,
+    rng: &mut SplitMix64,
     sigma: f64,
     missing: f64,
 ) -> Vec<FrameBundles> {
@@ -366,11 +344,15 @@ fn sample_bundles(
                 .iter()
                 .map(|m| {
                     let p = t[m.vertex as usize];
-                    if missing > 0.0 && rng.uniform() < missing {
+                    if missing > 0.0 && rng.next_f64() < missing {
                         return None;
                     }
                     Some(if sigma > 0.0 {
-                        p + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma
+                        p + Vector3::new(
+                            standard_normal(rng),
+                            standard_normal(rng),
+                            standard_normal(rng),
+                        ) * sigma
                     } else {
                         p
                     })
@@ -388,7 +370,7 @@ pub fn takes(
     anim_truth: &[Vec<Point3<f64>>],
     seed: u64,
 ) -> Vec<Take> {
-    let mut rng = Rng::new(seed);
+    let mut rng = SplitMix64::new(seed);
     let mut out = Vec::new();
     for (name, sigma, missing) in [
         ("exact", 0.0, 0.0),
@@ -774,7 +756,7 @@ pub fn run_benchmark(config: &BenchConfig) -> Result<Vec<Row>, String> {
             let base = crate::dataset::load_dataset(manifest, &Default::default())
                 .map_err(|e| format!("loading {}: {e}", manifest.display()))?;
             let layout = layout_or_generated(config.ict_layout.as_deref(), &base)?;
-            let mut rng = Rng::new(1);
+            let mut rng = SplitMix64::new(1);
             let n = base.shapes.len();
             let x0 = &base.neutral.positions;
             let stat: Vec<_> = (0..frames)
@@ -811,7 +793,7 @@ pub fn run_benchmark(config: &BenchConfig) -> Result<Vec<Row>, String> {
             .map_err(|e| format!("built-in actor: {e}"))?;
         let ds = a.to_dataset();
         let layout = layout_or_generated(config.actor_layout.as_deref(), &ds)?;
-        let mut rng = Rng::new(3);
+        let mut rng = SplitMix64::new(3);
         let n = a.expression_names().len();
         let stat: Vec<_> = (0..frames)
             .map(|_| a.evaluate(&random_weights(&mut rng, n)).positions)

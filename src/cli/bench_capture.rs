@@ -518,14 +518,8 @@ fn read_truth_in_cam0(
 struct Jitter(StdRng);
 
 impl Jitter {
-    fn uniform(&mut self) -> f64 {
-        self.0.random::<f64>()
-    }
-
     fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        helmcap::numeric::standard_normal(&mut self.0)
     }
 }
 

@@ -42,6 +42,7 @@ use nalgebra::{Point2, Point3};
 use spade::{DelaunayTriangulation, HasPosition, Triangulation};
 
 use crate::mesh::Mesh;
+use crate::numeric::NearestPoints;
 
 /// A marker site in the UV-space Delaunay triangulation.
 #[derive(Debug, Clone, Copy)]
@@ -533,132 +534,21 @@ pub fn nearest_sources(positions: &[Point3<f64>], has: &[bool]) -> Vec<u32> {
     if targets.is_empty() {
         return (0..positions.len() as u32).collect();
     }
-    let grid = PointGrid::new(positions, &targets);
+    let index = NearestPoints::new(targets.iter().map(|&t| positions[t as usize]));
     (0..positions.len())
         .into_par_iter()
         .map(|v| {
             if has[v] {
                 v as u32
             } else {
-                grid.nearest(positions, &positions[v])
+                // Of equally near targets the first (a vertex with a non-finite
+                // position takes the first target).
+                index
+                    .nearest_first(&positions[v])
+                    .map_or(targets[0], |(i, _)| targets[i])
             }
         })
         .collect()
-}
-
-/// A uniform bucket grid for nearest-point queries over a fixed set of mesh vertices.
-struct PointGrid {
-    min: Point3<f64>,
-    cell: f64,
-    res: [usize; 3],
-    offsets: Vec<u32>,
-    items: Vec<u32>,
-}
-
-impl PointGrid {
-    fn new(positions: &[Point3<f64>], targets: &[u32]) -> Self {
-        let mut min = positions[targets[0] as usize];
-        let mut max = min;
-        for &t in targets {
-            min = min.inf(&positions[t as usize]);
-            max = max.sup(&positions[t as usize]);
-        }
-        let ext = max - min;
-        let vol = (ext.x.max(1e-9)) * (ext.y.max(1e-9)) * (ext.z.max(1e-9));
-        let cell = (vol / (targets.len() as f64 / 4.0).max(1.0))
-            .cbrt()
-            .max(ext.max() / 128.0)
-            .max(1e-9);
-        let res = [
-            ((ext.x / cell) as usize + 1).min(256),
-            ((ext.y / cell) as usize + 1).min(256),
-            ((ext.z / cell) as usize + 1).min(256),
-        ];
-        let mut grid = Self {
-            min,
-            cell,
-            res,
-            offsets: Vec::new(),
-            items: Vec::new(),
-        };
-        let cells = res[0] * res[1] * res[2];
-        let mut count = vec![0u32; cells + 1];
-        let ids: Vec<usize> = targets
-            .iter()
-            .map(|&t| grid.cell_index(&grid.cell_of(&positions[t as usize])))
-            .collect();
-        for &c in &ids {
-            count[c + 1] += 1;
-        }
-        for c in 0..cells {
-            count[c + 1] += count[c];
-        }
-        let mut fill = count.clone();
-        let mut items = vec![0u32; targets.len()];
-        for (&t, &c) in targets.iter().zip(&ids) {
-            items[fill[c] as usize] = t;
-            fill[c] += 1;
-        }
-        grid.offsets = count;
-        grid.items = items;
-        grid
-    }
-
-    fn cell_of(&self, p: &Point3<f64>) -> [i64; 3] {
-        let d = (p - self.min) / self.cell;
-        [
-            (d.x.floor() as i64).clamp(0, self.res[0] as i64 - 1),
-            (d.y.floor() as i64).clamp(0, self.res[1] as i64 - 1),
-            (d.z.floor() as i64).clamp(0, self.res[2] as i64 - 1),
-        ]
-    }
-
-    fn cell_index(&self, c: &[i64; 3]) -> usize {
-        (c[0] as usize) + self.res[0] * ((c[1] as usize) + self.res[1] * (c[2] as usize))
-    }
-
-    /// Nearest target to `p` by expanding shells of cells.
-    fn nearest(&self, positions: &[Point3<f64>], p: &Point3<f64>) -> u32 {
-        let c = self.cell_of(p);
-        // Distance from p to the grid box bounds how far the first shells are.
-        let mut best = (f64::INFINITY, u32::MAX);
-        let max_r = self.res.iter().copied().max().unwrap_or(1) as i64;
-        for r in 0..=max_r {
-            // Any point in shell r is at least (r - 1) cells away from p's clamped cell.
-            if best.1 != u32::MAX {
-                let lower = ((r - 1).max(0) as f64) * self.cell;
-                if lower * lower > best.0 {
-                    break;
-                }
-            }
-            for dz in -r..=r {
-                for dy in -r..=r {
-                    for dx in -r..=r {
-                        if dx.abs().max(dy.abs()).max(dz.abs()) != r {
-                            continue;
-                        }
-                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        if q.iter()
-                            .zip(&self.res)
-                            .any(|(&x, &n)| x < 0 || x >= n as i64)
-                        {
-                            continue;
-                        }
-                        let ci = self.cell_index(&q);
-                        for &t in
-                            &self.items[self.offsets[ci] as usize..self.offsets[ci + 1] as usize]
-                        {
-                            let d = (positions[t as usize] - p).norm_squared();
-                            if d < best.0 || (d == best.0 && t < best.1) {
-                                best = (d, t);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        best.1
-    }
 }
 
 #[cfg(test)]

@@ -184,7 +184,6 @@ mod tests {
     use crate::mesh::triangle_areas;
     use nalgebra::{DMatrix, DVector};
 
-    /// A deterministic pseudo-random stream in [-1, 1) (xorshift64*).
     /// Uniform numbers in [-1, 1).
     struct Rng(rand::rngs::StdRng);
 

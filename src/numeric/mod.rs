@@ -7,11 +7,19 @@
 //! - [`upper_median`]: the median the robust estimators and the benchmarks report.
 //! - [`box_qp`] and [`convex_weights`]: small dense quadratic programs over the box and
 //!   the simplex (blendshape and rig weights, the jaw, the enhancer's combinations).
+//! - [`SplitMix64`] and [`standard_normal`]: seeded random numbers (the built-in actor,
+//!   the benchmarks' noise).
+//! - [`NearestPoints`]: nearest-point queries over a fixed set of 3D points (a `kiddo`
+//!   k-d tree), for acquisition's registration and LGI's vertices off the UV map.
 
+mod points;
 mod qp;
+mod random;
 mod spd;
 mod stats;
 
+pub use points::NearestPoints;
 pub use qp::{box_qp, convex_weights};
+pub use random::{SplitMix64, standard_normal};
 pub use spd::{FactorError, SpdFactor};
 pub use stats::upper_median;

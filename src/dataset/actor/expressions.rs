@@ -13,8 +13,8 @@ use nalgebra::Vector3;
 use crate::dataset::JawPose;
 
 use super::openings::LidState;
-use super::params::SplitMix64;
 use super::surface::{Layout, disc2 as disc, nasolabial_coords, smoothstep};
+use crate::numeric::SplitMix64;
 
 /// Names of the expressions in their fixed order (ARKit / FACS style; `_L` is the
 /// actor's left, +x).

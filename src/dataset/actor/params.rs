@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::ActorError;
+use crate::numeric::SplitMix64;
 
 /// Identity proportions of the built-in synthetic actor.
 ///
@@ -291,38 +292,5 @@ impl ActorParams {
             ));
         }
         Ok(())
-    }
-}
-
-/// The splitmix64 generator (Steele, Lea and Flood 2014): a tiny, well-mixed,
-/// deterministic PRNG, enough for drawing identities and wrinkle phases.
-#[derive(Debug, Clone)]
-pub(crate) struct SplitMix64 {
-    state: u64,
-}
-
-impl SplitMix64 {
-    /// A generator started at `seed`.
-    pub(crate) fn new(seed: u64) -> Self {
-        Self { state: seed }
-    }
-
-    /// The next 64 random bits.
-    pub(crate) fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub(crate) fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in [lo, hi).
-    pub(crate) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.next_f64()
     }
 }

@@ -1,8 +1,6 @@
 //! Acquisition: labeling a frame with no tracks, by registering the unlabeled triangulated
 //! points to the layout's neutral positions (module docs of [`super`], "Acquisition").
 
-use kiddo::SquaredEuclidean;
-use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -13,6 +11,7 @@ use super::{LabelStats, Labeler, PassResult};
 /// tracks from it (see `Labeler::choose_expression`).
 const TEMPLATE_MARGIN: f64 = 1.1;
 use crate::align::horn_alignment;
+use crate::numeric::NearestPoints;
 use crate::stereo::pair_detections;
 
 impl Labeler {
@@ -371,41 +370,26 @@ pub(super) struct Search {
     iterations: usize,
 }
 
-/// Nearest-neighbour queries within a radius over the triangulated points (a k-d tree).
+/// Nearest-neighbour queries within a radius over the triangulated points.
 pub(super) struct PointGrid {
     points: Vec<Point3<f64>>,
     radius_sq: f64,
-    tree: Option<ImmutableKdTree<f64, u64, 3, 32>>,
+    index: NearestPoints,
 }
 
 impl PointGrid {
     /// Indexes `points` (non-finite ones are never found) for queries within `radius`.
     pub(super) fn new(points: &[Point3<f64>], radius: f64) -> Self {
-        let coords: Vec<[f64; 3]> = points
-            .iter()
-            .map(|p| {
-                if p.coords.iter().all(|v| v.is_finite()) {
-                    [p.x, p.y, p.z]
-                } else {
-                    // Far outside any query: never within the radius.
-                    [f64::MAX / 4.0; 3]
-                }
-            })
-            .collect();
         Self {
             points: points.to_vec(),
             radius_sq: radius * radius,
-            tree: (!coords.is_empty()).then(|| ImmutableKdTree::new_from_slice(&coords)),
+            index: NearestPoints::new(points.iter().copied()),
         }
     }
 
     /// Index and distance of the nearest point within the radius.
     pub(super) fn nearest(&self, q: &Point3<f64>) -> Option<(usize, f64)> {
-        let tree = self.tree.as_ref()?;
-        if !q.coords.iter().all(|v| v.is_finite()) {
-            return None;
-        }
-        let nn = tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
-        (nn.distance < self.radius_sq).then(|| (nn.item as usize, nn.distance.sqrt()))
+        let (i, d2) = self.index.nearest(q)?;
+        (d2 < self.radius_sq).then(|| (i, d2.sqrt()))
     }
 }

@@ -17,9 +17,7 @@ impl Rng {
         a + (b - a) * self.uniform()
     }
     fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-12);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        crate::numeric::standard_normal(&mut self.0)
     }
 }
 

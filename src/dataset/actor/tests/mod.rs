@@ -857,7 +857,7 @@ fn actor_is_shareable_across_threads() {
 #[test]
 fn any_accepted_params_build_or_fail_cleanly() {
     // Proportions drawn anywhere in their accepted ranges (wider than `from_seed`).
-    let mut rng = params::SplitMix64::new(42);
+    let mut rng = crate::numeric::SplitMix64::new(42);
     let (mut built, mut rejected) = (0, 0);
     for _ in 0..24 {
         let mut u = |lo: f64, hi: f64| rng.uniform(lo, hi);
