@@ -44,6 +44,7 @@ use nalgebra::Point3;
 use crate::atomic_file::write_atomically;
 use crate::dataset::MarkerLayout;
 use crate::file_error::FileError;
+use crate::frame_index::FrameIndex;
 use crate::name_pairs::{NamePairsFormat, parse_name_pairs};
 
 /// Errors from reading or writing a bundles CSV.
@@ -67,7 +68,7 @@ pub enum BundlesError {
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameBundles {
     /// Frame number (as in the file).
-    pub frame: u64,
+    pub frame: FrameIndex,
     /// Position of each layout marker (millimetres, head frame); `None` when the marker is
     /// missing from the frame.
     pub positions: Vec<Option<Point3<f64>>>,
@@ -75,7 +76,7 @@ pub struct FrameBundles {
 
 impl FrameBundles {
     /// A frame with every marker present.
-    pub fn full(frame: u64, positions: &[Point3<f64>]) -> Self {
+    pub fn full(frame: FrameIndex, positions: &[Point3<f64>]) -> Self {
         Self {
             frame,
             positions: positions.iter().copied().map(Some).collect(),
@@ -365,7 +366,10 @@ pub fn parse_bundles_with(
     }
     let frames = frames
         .into_iter()
-        .map(|(frame, (positions, _))| FrameBundles { frame, positions })
+        .map(|(frame, (positions, _))| FrameBundles {
+            frame: FrameIndex::new(frame),
+            positions,
+        })
         .collect();
     Ok((frames, report))
 }
@@ -446,14 +450,14 @@ mod tests {
         let l = layout();
         let frames = vec![
             FrameBundles {
-                frame: 0,
+                frame: FrameIndex::new(0),
                 positions: vec![
                     Some(Point3::new(1.0, 2.0, 3.0)),
                     None,
                     Some(Point3::new(0.1 + 0.2, -1e-9, 7.5)),
                 ],
             },
-            FrameBundles::full(5, &[Point3::new(4.0, 5.0, 6.0); 3]),
+            FrameBundles::full(FrameIndex::new(5), &[Point3::new(4.0, 5.0, 6.0); 3]),
         ];
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("b.csv");
@@ -475,7 +479,7 @@ mod tests {
                     2,HELMET1,9,9,9,1\n";
         let (frames, report) = parse_bundles(text, "t.csv", &layout()).unwrap();
         assert_eq!(frames.len(), 2);
-        assert_eq!(frames[0].frame, 1);
+        assert_eq!(frames[0].frame, FrameIndex::new(1));
         assert_eq!(frames[0].positions[0], Some(Point3::origin()));
         assert_eq!(frames[0].positions[2], None);
         assert_eq!(frames[1].present_count(), 1);

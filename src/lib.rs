@@ -2,9 +2,10 @@
 //!
 //! Layers, bottom up (a module uses only those above it in this list; `tests/layers.rs`
 //! checks the `crate::` paths of every file against it):
-//! - [`file_error`], [`param_error`], [`limits`], [`atomic_file`], [`timecode`]: the one
-//!   error of a file and its line, the one error of a parameter out of range, the stated
-//!   size limits of every input, atomic writes, SMPTE timecode.
+//! - [`file_error`], [`param_error`], [`limits`], [`atomic_file`], [`timecode`], [`frame_index`]:
+//!   the one error of a file and its line, the one error of a parameter out of range, the
+//!   stated size limits of every input, atomic writes, SMPTE timecode, the frame number
+//!   every stage and file shares.
 //! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics, small box-
 //!   and simplex-constrained QPs); the two-column name files (label and name maps) are
 //!   read by one private parser.
@@ -48,6 +49,7 @@ pub mod dataset;
 pub mod enhance;
 pub mod farm;
 pub mod file_error;
+pub mod frame_index;
 pub mod lgi;
 pub mod limits;
 pub mod mesh;

@@ -11,6 +11,7 @@ use std::process::{Command, Output};
 use helmcap::bundles::{LabelMap, read_bundles, read_bundles_with};
 use helmcap::dataset::actor::{Actor, ActorParams};
 use helmcap::dataset::markers::{LayoutParams, generate_layout};
+use helmcap::frame_index::FrameIndex;
 use helmcap::mesh::read_obj_positions;
 use nalgebra::Point3;
 
@@ -93,7 +94,7 @@ fn own_c3d_solves_like_the_csv() {
     ] {
         ok(&solve(&file, &markers, &dir.path().join(o), &cache));
     }
-    let worst = |a: &str, b: &str, frame: u64| -> f64 {
+    let worst = |a: &str, b: &str, frame: FrameIndex| -> f64 {
         let name = format!("frame_{frame:06}.obj");
         let a = read_obj_positions(&dir.path().join(a).join(&name)).unwrap();
         let b = read_obj_positions(&dir.path().join(b).join(&name)).unwrap();
@@ -234,7 +235,7 @@ fn peer_c3d_reads_correctly() {
         assert_eq!(frames.len(), truth.len(), "{what}");
         for (f, (got, want)) in frames.iter().zip(&truth).enumerate() {
             // C3D frame 11 is bundles frame 10.
-            assert_eq!(got.frame, 10 + f as u64, "{what}");
+            assert_eq!(got.frame, FrameIndex::new(10 + f as u64), "{what}");
             for (m, (g, w)) in got.positions.iter().zip(want).enumerate() {
                 match (g, w) {
                     (Some(g), Some(w)) => {

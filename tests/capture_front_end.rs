@@ -125,7 +125,7 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
         let mut centres: [Vec<Point2<f64>>; 2] = [Vec::new(), Vec::new()];
         for c in 0..2 {
             let det = detect_markers(&frame.images[c], &params);
-            let gt = &projections[&(frame.index, c)];
+            let gt = &projections[&(frame.index.as_usize(), c)];
             visible += gt.values().filter(|(_, v)| *v).count();
             let mut matched = std::collections::HashSet::new();
             for d in &det {
@@ -149,7 +149,7 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
             pairs += 1;
             match (&names[0][m.index0], &names[1][m.index1]) {
                 (Some(a), Some(b)) if a == b => {
-                    let t = truth[&(frame.index, a.clone())];
+                    let t = truth[&(frame.index.as_usize(), a.clone())];
                     sq_err_mm += (m.bundle.point_in_cam0 - t).norm_squared();
                 }
                 (Some(_), Some(_)) => {

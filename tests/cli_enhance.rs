@@ -133,7 +133,7 @@ fn enhance_reads_the_usd_our_sink_writes() {
             height: 1,
             data: vec![0],
         };
-        let mut fr = FrameResult::new(i, 0, None, [image.clone(), image], 0);
+        let mut fr = FrameResult::new(i.into(), 0, None, [image.clone(), image], 0);
         fr.mesh = Some(Arc::new(p.clone()));
         sink.write(&fr).unwrap();
     }

@@ -425,7 +425,13 @@ fn c3d(cases: usize) {
             height: 1,
             data: vec![0],
         };
-        let mut f = FrameResult::new(index, 0, None, [image.clone(), image], layout.len());
+        let mut f = FrameResult::new(
+            helmcap::frame_index::FrameIndex::new(index),
+            0,
+            None,
+            [image.clone(), image],
+            layout.len(),
+        );
         for (k, m) in f.markers.iter_mut().enumerate() {
             // One marker is missing in every other frame.
             if k == 3 && index % 2 == 1 {

@@ -258,8 +258,8 @@ fn labels_a_300_frame_session_without_swaps() {
         acquiring_frames += usize::from(labels.stats.acquiring);
         reacquired += labels.stats.reacquired;
         let gt = [
-            &projections[&(frame.index, 0)],
-            &projections[&(frame.index, 1)],
+            &projections[&(frame.index.as_usize(), 0)],
+            &projections[&(frame.index.as_usize(), 1)],
         ];
         // The marker whose true projection is nearest a detection, within `tol` pixels
         // (visible or not: a dot the ground truth calls hidden, at a grazing angle or at
@@ -343,7 +343,7 @@ fn labels_a_300_frame_session_without_swaps() {
                     correct_visible += usize::from(vis);
                     correct_detected += usize::from(vis && in_both);
                     correct_detectable += usize::from(detectable);
-                    let t = truth[&frame.index][k];
+                    let t = truth[&frame.index.as_usize()][k];
                     sq_err += (m.bundle.point_in_cam0 - t).norm_squared();
                 } else {
                     wrong += 1;

@@ -9,6 +9,7 @@ use std::sync::OnceLock;
 use helmcap::bundles::FrameBundles;
 use helmcap::dataset::markers::{LayoutParams, generate_layout};
 use helmcap::dataset::{Dataset, LoadOptions, MarkerLayout, load_dataset};
+use helmcap::frame_index::FrameIndex;
 use helmcap::lgi::{LgiParams, LgiSolver};
 use nalgebra::Point3;
 
@@ -64,7 +65,7 @@ fn bundles_of(layout: &MarkerLayout, positions: &[Point3<f64>], frame: u64) -> F
         .iter()
         .map(|m| positions[m.vertex as usize])
         .collect();
-    FrameBundles::full(frame, &p)
+    FrameBundles::full(FrameIndex::new(frame), &p)
 }
 
 fn face_error(ds: &Dataset, a: &[Point3<f64>], b: &[Point3<f64>]) -> (f64, f64) {
@@ -330,12 +331,12 @@ fn bad_frames_give_valid_meshes_or_clear_errors() {
 
     // Nothing present, or the wrong marker count: clear errors.
     let none = FrameBundles {
-        frame: 7,
+        frame: FrameIndex::new(7),
         positions: vec![None; layout.len()],
     };
     let e = s.solve(&none).unwrap_err().to_string();
     assert!(e.contains("frame 7") && e.contains("no marker"), "{e}");
-    let short = FrameBundles::full(8, &[Point3::origin(); 3]);
+    let short = FrameBundles::full(FrameIndex::new(8), &[Point3::origin(); 3]);
     let e = s.solve(&short).unwrap_err().to_string();
     assert!(e.contains("frame 8") && e.contains("3 bundles"), "{e}");
 }

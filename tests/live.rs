@@ -83,18 +83,18 @@ fn check_recording(out: &Path, report: &serde_json::Value) -> Vec<usize> {
         let f = f.unwrap();
         assert_eq!(
             f.images[0],
-            test_pattern(W, H, f.index, 0),
+            test_pattern(W, H, f.index.as_usize(), 0),
             "frame {}",
             f.index
         );
         assert_eq!(
             f.images[1],
-            test_pattern(W, H, f.index, 1),
+            test_pattern(W, H, f.index.as_usize(), 1),
             "frame {}",
             f.index
         );
         assert!(f.timecode.is_some());
-        indices.push(f.index);
+        indices.push(f.index.as_usize());
     }
     assert_eq!(report["frames_written"], indices.len());
     assert_eq!(report["frames_unaccounted"], 0, "{report:#}");

@@ -28,7 +28,7 @@ fn solve_writes_frames_through_the_bundles() {
             w[actor.expression_index("mouthSmile_R").unwrap()] = 0.5;
             let p = actor.evaluate(&w).positions;
             let mut b = FrameBundles::full(
-                10 + f,
+                helmcap::frame_index::FrameIndex::new(10 + f),
                 &layout
                     .markers
                     .iter()

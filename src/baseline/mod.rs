@@ -13,6 +13,7 @@ pub use blendshape::{BlendshapeParams, BlendshapeSolver};
 pub use rbf::{RbfKernel, RbfParams, RbfSolver};
 
 use crate::bundles::FrameBundles;
+use crate::frame_index::FrameIndex;
 
 /// Errors of the baseline solvers.
 #[derive(Debug, thiserror::Error)]
@@ -27,7 +28,7 @@ pub enum BaselineError {
     #[error("frame {frame}: {message}")]
     Frame {
         /// Frame number.
-        frame: u64,
+        frame: FrameIndex,
         /// What was wrong.
         message: String,
     },

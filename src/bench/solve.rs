@@ -36,6 +36,7 @@ use nalgebra::{Point3, Vector3};
 use super::host::{process_cpu_seconds, thread_cpu_seconds};
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, MarkerLayout, Shape};
+use crate::frame_index::FrameIndex;
 use crate::lgi::{LgiParams, TemporalParams};
 use crate::numeric::{SplitMix64, standard_normal};
 use crate::solve::{Method, SolveParams, Solver};
@@ -338,7 +339,7 @@ fn sample_bundles(
         .iter()
         .enumerate()
         .map(|(f, t)| FrameBundles {
-            frame: f as u64,
+            frame: FrameIndex::from(f),
             positions: layout
                 .markers
                 .iter()

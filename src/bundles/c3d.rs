@@ -25,6 +25,7 @@ use nalgebra::Point3;
 
 use super::{BundlesError, FrameBundles, LabelMap, ReadReport};
 use crate::dataset::MarkerLayout;
+use crate::frame_index::FrameIndex;
 
 /// What a C3D file said about itself, for the caller to report.
 #[derive(Debug, Clone, PartialEq)]
@@ -163,7 +164,7 @@ pub(crate) fn parse_c3d(
             }
         }
         frames.push(FrameBundles {
-            frame: first - 1 + r as u64,
+            frame: FrameIndex::new(first - 1 + r as u64),
             positions,
         });
     }

@@ -356,9 +356,10 @@ impl Recorder {
         };
         self.started.get_or_insert_with(Instant::now);
         self.received += 1;
-        self.first_frame.get_or_insert(frame.index);
-        self.last_frame = Some(frame.index);
-        let index = frame.index;
+        // The recorder numbers its files and rows by the frame index as an array index.
+        let index = frame.index.as_usize();
+        self.first_frame.get_or_insert(index);
+        self.last_frame = Some(index);
         // The collector is unbounded and only ends after `finish`: a failed send cannot
         // happen while `self` is alive, and would only lose the row, which is then counted.
         let _ = col.send(CollectorMsg::Accepted(RowMeta {
@@ -754,7 +755,11 @@ mod tests {
         let mut stamps = Vec::new();
         while let Some(f) = src.next_stamped() {
             let f = f.unwrap();
-            stamps.push((f.frame.index, f.frame.timestamp_ns, f.frame.timecode));
+            stamps.push((
+                f.frame.index.as_usize(),
+                f.frame.timestamp_ns,
+                f.frame.timecode,
+            ));
             rec.push(
                 f.frame,
                 FrameStamp {
@@ -775,12 +780,12 @@ mod tests {
         let frames: Vec<_> = replay.map(Result::unwrap).collect();
         assert_eq!(frames.len(), 23);
         for (f, (index, ts, tc)) in frames.iter().zip(&stamps) {
-            assert_eq!((f.index, f.timestamp_ns), (*index, *ts));
+            assert_eq!((f.index.as_usize(), f.timestamp_ns), (*index, *ts));
             assert_eq!(f.timecode.map(|t| t.to_string()), tc.map(|t| t.to_string()));
             assert_eq!(f.images[0], test_pattern(32, 24, *index, 0));
             assert_eq!(f.images[1], test_pattern(32, 24, *index, 1));
         }
-        assert!(!frames.iter().any(|f| f.index == 4));
+        assert!(!frames.iter().any(|f| f.index.get() == 4));
         let toml = std::fs::read_to_string(root.join("session.toml")).unwrap();
         let start = stamps[0].2.unwrap().to_string();
         assert!(toml.contains(&format!("start = \"{start}\"")), "{toml}");
@@ -853,7 +858,7 @@ mod tests {
         assert!(written.iter().all(|i| !report.lost_frames.contains(i)));
         for f in Replay::open(&root, ReplayParams::default()).unwrap() {
             let f = f.unwrap();
-            assert_eq!(f.images[1], test_pattern(32, 24, f.index, 1));
+            assert_eq!(f.images[1], test_pattern(32, 24, f.index.as_usize(), 1));
         }
         // No stray temporary files.
         let stray = std::fs::read_dir(root.join("cam0"))
@@ -877,7 +882,7 @@ mod tests {
         let mut rec =
             Recorder::create(&root, header(Some(rig.clone())), RecorderParams::default()).unwrap();
         let frame = |index: usize| StereoFrame {
-            index,
+            index: index.into(),
             timestamp_ns: index as u64 * 16_666_667,
             timecode: None,
             images: [test_pattern(8, 4, index, 0), test_pattern(8, 4, index, 1)],

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use super::video::{VideoReader, probe_timecode};
 use super::{CaptureError, GrayConversion, GrayImage, read_gray};
 use crate::camera::{StereoRig, read_rig};
+use crate::frame_index::FrameIndex;
 use crate::timecode::{Timecode, TimecodeClock, TimecodeRate};
 
 /// Replay settings.
@@ -50,7 +51,7 @@ pub struct SessionInfo {
 #[derive(Debug, Clone, PartialEq)]
 pub struct StereoFrame {
     /// Frame index (as in `frames.csv`).
-    pub index: usize,
+    pub index: FrameIndex,
     /// Capture timestamp, ns.
     pub timestamp_ns: u64,
     /// Timecode, when the source has one.
@@ -566,7 +567,7 @@ impl Replay {
                 Ok((images, container_ts)) => {
                     self.stats.frames_out += 1;
                     return Some(Ok(StereoFrame {
-                        index,
+                        index: index.into(),
                         timestamp_ns: container_ts.unwrap_or(ts),
                         timecode: tc,
                         images,

@@ -254,8 +254,8 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
                 .collect();
             let out = labeler.process(f.index, [&noisy[0], &noisy[1]]);
             let gt = [
-                projections.get(&(f.index, 0)),
-                projections.get(&(f.index, 1)),
+                projections.get(&(f.index.as_usize(), 0)),
+                projections.get(&(f.index.as_usize(), 1)),
             ];
             let (Some(g0), Some(g1)) = (gt[0], gt[1]) else {
                 continue;
@@ -274,7 +274,7 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
                     right += 1;
                     right_visible += usize::from(is_visible(k));
                     right_detectable += usize::from(is_detectable(k));
-                    if let Some(t) = truth.get(&f.index) {
+                    if let Some(t) = truth.get(&f.index.as_usize()) {
                         sq += (m.bundle.point_in_cam0 - t[k]).norm_squared();
                         z_sum += t[k].z;
                     }

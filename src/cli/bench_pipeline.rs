@@ -57,7 +57,7 @@ impl Sink for LatencyProbe {
     fn write(&mut self, frame: &FrameResult) -> Result<(), SinkError> {
         let ms = frame.received_at.elapsed().as_secs_f64() * 1e3;
         if let Ok(mut f) = self.frames.lock() {
-            f.push((frame.index, ms, frame.timings));
+            f.push((frame.index.as_usize(), ms, frame.timings));
         }
         Ok(())
     }

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use helmcap::capture::{GrayImage, Replay, ReplayParams, StereoFrame};
 use helmcap::dataset::DatasetSpec;
+use helmcap::frame_index::FrameIndex;
 use helmcap::take::TakeDataset;
 use helmcap::track::{
     CaptureProfile, DetectParams, Detection, LabeledFrame, Labeler, MarkerDetector, Rejection,
@@ -102,7 +103,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             let (layout, neutral) = (take.layout, take.neutral_markers);
             names = layout.markers.iter().map(|m| m.name.clone()).collect();
             let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label_params())?;
-            Some(labeler.process(0, [&results[0].dots, &results[1].dots]))
+            Some(labeler.process(FrameIndex::new(0), [&results[0].dots, &results[1].dots]))
         }
         _ => None,
     };

@@ -110,7 +110,7 @@ impl Sink for ProgressSink {
 
     fn write(&mut self, f: &FrameResult) -> Result<(), SinkError> {
         self.bar.inc(1);
-        if f.index.is_multiple_of(10) {
+        if f.index.get().is_multiple_of(10) {
             let labeled = f.count(helmcap::pipeline::BundleStatus::Observed);
             self.bar
                 .set_message(format!("frame {} · {labeled} markers", f.index));

@@ -8,6 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use helmcap::bundles::{FrameBundles, LabelMap, read_bundles_with};
 use helmcap::dataset::{Dataset, MarkerLayout};
+use helmcap::frame_index::FrameIndex;
 use helmcap::lgi::{LgiIndex, LgiParams, LgiSolver, TemporalParams, WeightSmoother};
 use helmcap::mesh::{write_obj_positions, write_ply};
 use helmcap::solve::{Method, SolveParams, Solver};
@@ -259,7 +260,7 @@ struct FrameWriter<'a> {
 }
 
 impl FrameWriter<'_> {
-    fn write(&self, frame: u64, positions: &[Point3<f64>]) -> anyhow::Result<()> {
+    fn write(&self, frame: FrameIndex, positions: &[Point3<f64>]) -> anyhow::Result<()> {
         let mesh = &self.neutral.neutral;
         let (path, r) = match self.format {
             Format::Obj => {

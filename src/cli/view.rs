@@ -209,7 +209,7 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
             let errors: Vec<f32> = (0..vertex_count).map(|v| (v % 7) as f32 * 0.2).collect();
             let timecode = Timecode::from_frame_count(TimecodeRate::FPS_60, i as u64);
             let frame = RerunFrame {
-                frame: i,
+                frame: i.into(),
                 timestamp_ns: i as u64 * 16_666_667,
                 timecode: Some(&timecode),
                 images: [Some(&images[0]), Some(&images[1])],

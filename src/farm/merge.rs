@@ -308,8 +308,8 @@ fn build(
                     .filter_map(|(dir, m)| {
                         m.metrics.frame_range().map(|(a, b)| C3dPart {
                             path: dir.join(file),
-                            first_frame: a,
-                            last_frame: b,
+                            first_frame: a.as_usize(),
+                            last_frame: b.as_usize(),
                         })
                     })
                     .collect();
@@ -318,7 +318,7 @@ fn build(
                     &c3d,
                     first.markers.clone(),
                     first.fps,
-                    collector.first_timecode(),
+                    collector.first_timecode().map(|(i, tc)| (i.as_usize(), tc)),
                 )
                 .map_err(|e| w(e.to_string()))?;
             }

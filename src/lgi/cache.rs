@@ -180,7 +180,7 @@ mod tests {
         w[5] = 0.4;
         let truth = a.evaluate(&w).positions;
         let mut frame = FrameBundles::full(
-            0,
+            crate::frame_index::FrameIndex::new(0),
             &layout
                 .markers
                 .iter()

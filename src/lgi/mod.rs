@@ -64,6 +64,7 @@ pub use temporal::{Kernel, TemporalParams, WeightSmoother};
 
 use crate::bundles::FrameBundles;
 use crate::dataset::{Dataset, JawPose, MarkerLayout};
+use crate::frame_index::FrameIndex;
 
 /// Errors of local geometric indexing.
 #[derive(Debug, thiserror::Error)]
@@ -91,7 +92,7 @@ pub enum LgiError {
     #[error("frame {frame}: {message}")]
     Frame {
         /// Frame number.
-        frame: u64,
+        frame: FrameIndex,
         /// What was wrong.
         message: String,
     },
@@ -266,7 +267,7 @@ pub struct MarkerWeights {
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameWeights {
     /// Frame number.
-    pub frame: u64,
+    pub frame: FrameIndex,
     /// Per marker, in layout order.
     pub markers: Vec<MarkerWeights>,
     /// Jaw pose θ of the frame (when the index works in unskinned space).

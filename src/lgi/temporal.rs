@@ -170,10 +170,11 @@ impl WeightSmoother {
 mod tests {
     use super::super::MarkerWeights;
     use super::*;
+    use crate::frame_index::FrameIndex;
 
     fn frame(f: u64, j: u16) -> FrameWeights {
         FrameWeights {
-            frame: f,
+            frame: FrameIndex::new(f),
             markers: vec![MarkerWeights {
                 present: true,
                 inside: true,
@@ -197,7 +198,7 @@ mod tests {
         }
         out.extend(s.finish());
         assert_eq!(
-            out.iter().map(|f| f.frame).collect::<Vec<_>>(),
+            out.iter().map(|f| f.frame.get()).collect::<Vec<_>>(),
             (0..6).collect::<Vec<_>>()
         );
         let w = |f: &FrameWeights, j: u16| {

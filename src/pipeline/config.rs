@@ -13,6 +13,7 @@ use crate::animation::RigSolver;
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
 use crate::enhance::Enhancer;
+use crate::frame_index::FrameIndex;
 use crate::mesh::Mesh;
 use crate::solve::Solver;
 use crate::timecode::TimecodeRate;
@@ -111,8 +112,8 @@ impl LabelRestarts {
     }
 
     /// Whether labeling restarts on frame `index`.
-    pub fn restarts_at(&self, index: usize) -> bool {
-        self.every > 0 && index % self.every == self.at
+    pub fn restarts_at(&self, index: FrameIndex) -> bool {
+        self.every > 0 && index.get() % self.every as u64 == self.at as u64
     }
 }
 
@@ -215,15 +216,20 @@ mod tests {
     fn label_restarts_fall_where_chunks_start_their_warm_up() {
         // Chunks of 600 from frame 0, 60 of warm-up: warm-ups start at 540, 1140, ...
         let r = LabelRestarts::of_chunks(0, 600, 60).unwrap();
-        let hits: Vec<usize> = (0..2000).filter(|&f| r.restarts_at(f)).collect();
+        let hits: Vec<u64> = (0..2000)
+            .filter(|&f| r.restarts_at(FrameIndex::new(f)))
+            .collect();
         assert_eq!(hits, [540, 1140, 1740]);
         // A take starting at frame 1000, chunks of 80, warm-up 60: 1020, 1100, ...
         let r = LabelRestarts::of_chunks(1000, 80, 60).unwrap();
-        let hits: Vec<usize> = (1000..1200).filter(|&f| r.restarts_at(f)).collect();
+        let hits: Vec<u64> = (1000..1200)
+            .filter(|&f| r.restarts_at(FrameIndex::new(f)))
+            .collect();
         assert_eq!(hits, [1020, 1100, 1180]);
         // A warm-up longer than a chunk: the same residue.
         let r = LabelRestarts::of_chunks(0, 50, 120).unwrap();
-        assert!(r.restarts_at(30) && r.restarts_at(80) && !r.restarts_at(0));
+        let at = |f: u64| r.restarts_at(FrameIndex::new(f));
+        assert!(at(30) && at(80) && !at(0));
         assert_eq!(LabelRestarts::of_chunks(0, 0, 60), None);
     }
 }

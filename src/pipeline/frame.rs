@@ -8,6 +8,7 @@ use nalgebra::{Isometry3, Point2, Point3};
 use crate::align::PoseSource;
 use crate::animation::RigFit;
 use crate::capture::GrayImage;
+use crate::frame_index::FrameIndex;
 use crate::timecode::Timecode;
 use crate::track::Detection;
 
@@ -176,7 +177,7 @@ pub struct LabelCounts {
 #[derive(Debug, Clone)]
 pub struct FrameResult {
     /// Frame index (as the source numbers it).
-    pub index: usize,
+    pub index: FrameIndex,
     /// Capture timestamp, ns.
     pub timestamp_ns: u64,
     /// Timecode, when the source has one.
@@ -215,7 +216,7 @@ pub struct FrameResult {
 impl FrameResult {
     /// A frame fresh from the source, with `marker_count` markers not yet seen.
     pub fn new(
-        index: usize,
+        index: FrameIndex,
         timestamp_ns: u64,
         timecode: Option<Timecode>,
         images: [GrayImage; 2],

@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 
 use super::frame::{BundleStatus, FrameResult, Stage};
 use crate::align::PoseSource;
+use crate::frame_index::FrameIndex;
 use crate::timecode::Timecode;
 
 /// Ratio between consecutive histogram bin edges.
@@ -288,7 +289,7 @@ pub struct Metrics {
     /// Timecode of the first and last frame out, when the source has timecode.
     pub timecode: Option<TimecodeRange>,
     /// First and last frame index out.
-    pub frame_range: Option<(usize, usize)>,
+    pub frame_range: Option<(FrameIndex, FrameIndex)>,
     /// Accuracy against ground truth, when the session has it.
     pub accuracy: Option<AccuracyMetrics>,
     /// Why the take stopped early (a stage error or an interruption), if it did.
@@ -322,7 +323,7 @@ pub struct MetricsCollector {
     /// Index of the first frame out with a timecode (where a merge checks the step from
     /// the previous chunk's last timecode).
     #[serde(default)]
-    first_tc_index: Option<usize>,
+    first_tc_index: Option<FrameIndex>,
     #[serde(with = "timecode_file")]
     last_tc: Option<Timecode>,
     bundle_sq_sum: f64,
@@ -333,7 +334,7 @@ pub struct MetricsCollector {
     solves_meshes: bool,
     /// Index and timecode of the previous frame out.
     #[serde(with = "indexed_timecode_file")]
-    previous_tc: Option<(usize, Timecode)>,
+    previous_tc: Option<(FrameIndex, Timecode)>,
     /// Frames out so far without any observed marker, while none had one.
     unlabeled_start_frames: u64,
     any_labeled: bool,
@@ -494,7 +495,7 @@ impl MetricsCollector {
     }
 
     /// Counts a repeat or jump from the previous frame's timecode to frame `index`'s.
-    fn check_timecode_step(&mut self, index: usize, tc: Timecode) {
+    fn check_timecode_step(&mut self, index: FrameIndex, tc: Timecode) {
         let w = &mut self.metrics.warnings;
         if let Some((prev_index, prev)) = self.previous_tc
             && prev.rate == tc.rate
@@ -502,7 +503,7 @@ impl MetricsCollector {
             let k = i64::from(tc.subframes.max(1));
             let at = |t: &Timecode| t.frame_count as i64 * k + i64::from(t.subframe);
             let step = at(&tc) - at(&prev);
-            let frames = (index as i64 - prev_index as i64).max(1);
+            let frames = (index.get() as i64 - prev_index.get() as i64).max(1);
             // A whole day of timecode wraps at midnight.
             let day = tc.rate.frames_per_day() as i64 * k;
             let step = if step < -day / 2 { step + day } else { step };
@@ -536,12 +537,12 @@ impl MetricsCollector {
     }
 
     /// The first frame out that has a timecode, and its timecode.
-    pub fn first_timecode(&self) -> Option<(usize, Timecode)> {
+    pub fn first_timecode(&self) -> Option<(FrameIndex, Timecode)> {
         self.first_tc_index.zip(self.first_tc)
     }
 
     /// First and last frame index out.
-    pub fn frame_range(&self) -> Option<(usize, usize)> {
+    pub fn frame_range(&self) -> Option<(FrameIndex, FrameIndex)> {
         self.metrics.frame_range
     }
 
@@ -774,10 +775,10 @@ mod timecode_file {
 }
 
 mod indexed_timecode_file {
-    use super::{Timecode, TimecodeFile};
+    use super::{FrameIndex, Timecode, TimecodeFile};
 
     pub fn serialize<S: serde::Serializer>(
-        tc: &Option<(usize, Timecode)>,
+        tc: &Option<(FrameIndex, Timecode)>,
         s: S,
     ) -> Result<S::Ok, S::Error> {
         use serde::Serialize;
@@ -788,9 +789,9 @@ mod indexed_timecode_file {
 
     pub fn deserialize<'de, D: serde::Deserializer<'de>>(
         d: D,
-    ) -> Result<Option<(usize, Timecode)>, D::Error> {
+    ) -> Result<Option<(FrameIndex, Timecode)>, D::Error> {
         use serde::Deserialize;
-        Option::<(usize, TimecodeFile)>::deserialize(d)?
+        Option::<(FrameIndex, TimecodeFile)>::deserialize(d)?
             .map(|(i, f)| f.timecode().map(|t| (i, t)))
             .transpose()
     }
@@ -811,7 +812,7 @@ mod tests {
         let rate = crate::timecode::TimecodeRate::FPS_30;
         // A jump of 5 timecode frames at frame 40 (the first of the second chunk below).
         let tc = Timecode::from_frame_count(rate, 108_000 + i as u64 + if i >= 40 { 5 } else { 0 });
-        let mut f = FrameResult::new(i, 0, Some(tc), [image.clone(), image], 6);
+        let mut f = FrameResult::new(i.into(), 0, Some(tc), [image.clone(), image], 6);
         for (k, m) in f.markers.iter_mut().enumerate() {
             if (k + i).is_multiple_of(3) {
                 m.status = BundleStatus::Observed;

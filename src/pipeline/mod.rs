@@ -41,6 +41,8 @@ pub mod sink;
 pub mod sources;
 pub mod truth;
 
+use crate::frame_index::FrameIndex;
+
 pub use config::{
     ChannelConfig, GAP_FILL_MEMORY_HALF_LIVES, LabelRestarts, PipelineConfig, SolveConfig,
     TakeInfo, TrackConfig,
@@ -63,7 +65,7 @@ pub enum PipelineError {
         /// The stage.
         stage: Stage,
         /// The frame, when the failure concerns one.
-        frame: Option<usize>,
+        frame: Option<FrameIndex>,
         /// What went wrong.
         message: String,
     },
@@ -73,7 +75,7 @@ pub enum PipelineError {
         /// The sink's name.
         sink: String,
         /// The frame, when the failure concerns one.
-        frame: Option<usize>,
+        frame: Option<FrameIndex>,
         /// What went wrong.
         message: String,
     },

@@ -20,6 +20,7 @@ use crate::align::{PoseSource, Stabilizer};
 use crate::bundles::FrameBundles;
 use crate::capture::{CaptureError, FrameSource};
 use crate::dataset::MarkerLayout;
+use crate::frame_index::FrameIndex;
 use crate::solve::Solver;
 use crate::track::{Labeler, StereoTracker, TrackedFrame};
 
@@ -43,7 +44,7 @@ fn record(slot: &ErrorSlot, e: PipelineError) -> PipelineError {
     e
 }
 
-fn stage_err(stage: Stage, frame: Option<usize>, message: impl Into<String>) -> PipelineError {
+fn stage_err(stage: Stage, frame: Option<FrameIndex>, message: impl Into<String>) -> PipelineError {
     PipelineError::Stage {
         stage,
         frame,
@@ -102,11 +103,11 @@ fn ms_since(t: Instant) -> f64 {
 }
 
 /// The frame a capture error names, if any.
-fn capture_error_frame(e: &CaptureError) -> Option<usize> {
+fn capture_error_frame(e: &CaptureError) -> Option<FrameIndex> {
     match e {
         CaptureError::Decode { frame, .. }
         | CaptureError::Size { frame, .. }
-        | CaptureError::MissingImage { frame, .. } => Some(*frame),
+        | CaptureError::MissingImage { frame, .. } => Some(FrameIndex::from(*frame)),
         _ => None,
     }
 }
@@ -307,7 +308,7 @@ pub fn run(
         };
         let solve_layout = layout.clone();
         let mut solver = solver;
-        let mut last_seen: Vec<Option<usize>> = vec![None; layout.len()];
+        let mut last_seen: Vec<Option<FrameIndex>> = vec![None; layout.len()];
         let (solve_out, mut tail) = bounded::<Box<FrameResult>>(capacity);
         handles.push(spawn_stage(
             Stage::Solve,
@@ -318,7 +319,9 @@ pub fn run(
                 let Some(s) = solver.as_mut() else {
                     return Ok(false);
                 };
-                if solve_keyframe_interval > 0 && f.index.is_multiple_of(solve_keyframe_interval) {
+                if solve_keyframe_interval > 0
+                    && f.index.get().is_multiple_of(solve_keyframe_interval as u64)
+                {
                     s.reset();
                 }
                 solve_frame(
@@ -442,7 +445,7 @@ fn source_stage(
     stop: &AtomicBool,
     counters: &SourceCounters,
 ) -> Result<(), PipelineError> {
-    let mut next_index = 0usize;
+    let mut next_index = FrameIndex::new(0);
     loop {
         if stop.load(Ordering::SeqCst) {
             return Ok(());
@@ -460,7 +463,7 @@ fn source_stage(
                 e.to_string(),
             )
         })?;
-        next_index = frame.index + 1;
+        next_index = frame.index.after(1);
         counters.frames_in.fetch_add(1, Ordering::SeqCst);
         let mut f = Box::new(FrameResult::new(
             frame.index,
@@ -557,7 +560,7 @@ fn solve_frame(
     f: &mut FrameResult,
     solver: &mut Solver,
     layout: &MarkerLayout,
-    last_seen: &mut [Option<usize>],
+    last_seen: &mut [Option<FrameIndex>],
     half_life_frames: f64,
     truth: Option<&GroundTruth>,
 ) -> Result<(), PipelineError> {
@@ -579,7 +582,7 @@ fn solve_frame(
         return Ok(());
     }
     let bundles = FrameBundles {
-        frame: f.index as u64,
+        frame: f.index,
         positions,
     };
     let mesh = solver
@@ -601,10 +604,10 @@ fn solve_frame(
             // warmed up that long writes the single pass's values.
             m.confidence = match seen {
                 Some(s)
-                    if (f.index.saturating_sub(*s)) as f64
+                    if f.index.since(*s).unwrap_or(0) as f64
                         <= GAP_FILL_MEMORY_HALF_LIVES * half_life_frames =>
                 {
-                    0.5f64.powf((f.index.saturating_sub(*s)) as f64 / half_life_frames)
+                    0.5f64.powf(f.index.since(*s).unwrap_or(0) as f64 / half_life_frames)
                 }
                 _ => 0.0,
             };
@@ -636,7 +639,7 @@ fn sink_stage(
     let mut failure: Option<PipelineError> = None;
     let mut warm_up = 0u64;
     for mut f in input.iter() {
-        if f.index < write_from {
+        if f.index < FrameIndex::from(write_from) {
             warm_up += 1;
             continue;
         }

@@ -113,7 +113,7 @@ impl FrameSource for LoopSource {
         }
         let src = &self.frames[self.next % self.frames.len()];
         let frame = StereoFrame {
-            index: self.next,
+            index: self.next.into(),
             timestamp_ns: (self.next as f64 * 1e9 / self.fps) as u64,
             timecode: None,
             images: src.images.clone(),

@@ -9,12 +9,13 @@ use nalgebra::Point3;
 
 use crate::bundles::{BundlesError, read_bundles};
 use crate::dataset::MarkerLayout;
+use crate::frame_index::FrameIndex;
 use crate::mesh::read_obj_positions;
 
 /// Ground truth of one session.
 #[derive(Debug, Clone)]
 pub struct GroundTruth {
-    bundles: HashMap<usize, Vec<Option<Point3<f64>>>>,
+    bundles: HashMap<FrameIndex, Vec<Option<Point3<f64>>>>,
     mesh_dir: Option<PathBuf>,
 }
 
@@ -29,10 +30,7 @@ impl GroundTruth {
             return Ok(None);
         }
         let (frames, _) = read_bundles(&path, layout)?;
-        let bundles = frames
-            .into_iter()
-            .map(|f| (f.frame as usize, f.positions))
-            .collect();
+        let bundles = frames.into_iter().map(|f| (f.frame, f.positions)).collect();
         let mesh_dir = session.join("gt").join("mesh");
         Ok(Some(Self {
             bundles,
@@ -41,7 +39,7 @@ impl GroundTruth {
     }
 
     /// Ground truth from memory (tests, wrappers that renumber frames).
-    pub fn from_bundles(bundles: HashMap<usize, Vec<Option<Point3<f64>>>>) -> Self {
+    pub fn from_bundles(bundles: HashMap<FrameIndex, Vec<Option<Point3<f64>>>>) -> Self {
         Self {
             bundles,
             mesh_dir: None,
@@ -58,7 +56,7 @@ impl GroundTruth {
     /// to compare.
     pub fn bundle_rms_mm(
         &self,
-        frame: usize,
+        frame: FrameIndex,
         bundles_in_head: &[Option<Point3<f64>>],
     ) -> Option<f64> {
         let truth = self.bundles.get(&frame)?;
@@ -74,7 +72,7 @@ impl GroundTruth {
 
     /// Per-vertex distance (mm) between `mesh` and the true mesh of `frame`; None when
     /// there is no true mesh for the frame or its vertex count differs (logged).
-    pub fn mesh_error_mm(&self, frame: usize, mesh: &[Point3<f64>]) -> Option<Vec<f32>> {
+    pub fn mesh_error_mm(&self, frame: FrameIndex, mesh: &[Point3<f64>]) -> Option<Vec<f32>> {
         let path = self
             .mesh_dir
             .as_ref()?

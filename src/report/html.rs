@@ -578,6 +578,7 @@ pub fn day_page(day: &str, rows: &[DayRow]) -> Result<String, ReportError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame_index::FrameIndex;
     use crate::pipeline::{LatencyStats, Metrics};
     use crate::report::sheet::SheetFrame;
     use crate::report::take::bin_coverage;
@@ -613,7 +614,7 @@ mod tests {
         let mut metrics = Metrics {
             frames_in: 10,
             frames_out: 10,
-            frame_range: Some((0, 9)),
+            frame_range: Some((FrameIndex::new(0), FrameIndex::new(9))),
             ..Metrics::default()
         };
         let stats = LatencyStats {

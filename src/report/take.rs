@@ -171,6 +171,7 @@ impl TakeSummary {
         }
         let frame_range = metrics
             .frame_range
+            .map(|(a, b)| (a.as_usize(), b.as_usize()))
             .or_else(|| Some((*frames_seen.first()?, *frames_seen.last()?)));
 
         let coverage = match (&bundles, frame_range) {
@@ -586,6 +587,7 @@ fn read_table(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame_index::FrameIndex;
     use std::collections::BTreeSet;
 
     fn names(n: usize) -> Vec<String> {
@@ -661,7 +663,7 @@ mod tests {
         let metrics = Metrics {
             frames_in: 3,
             frames_out: 3,
-            frame_range: Some((0, 2)),
+            frame_range: Some((FrameIndex::new(0), FrameIndex::new(2))),
             ..Metrics::default()
         };
         let mut value = serde_json::to_value(&metrics).unwrap();

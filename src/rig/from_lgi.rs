@@ -175,7 +175,7 @@ pub fn rig_from_lgi(
                     .iter()
                     .map(|m| shape[m.vertex as usize])
                     .collect();
-                let out = solver.solve(&FrameBundles::full(k as u64, &bundles))?;
+                let out = solver.solve(&FrameBundles::full(k.into(), &bundles))?;
                 let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                 progress(d, total);
                 Ok(out)

@@ -405,7 +405,7 @@ impl Sink for AnimationSink {
         };
         match (&fr.rig_fit, &fr.mesh) {
             (Some(fit), _) => w.write_fit(
-                fr.index,
+                fr.index.as_usize(),
                 fr.timecode.as_ref(),
                 fit,
                 fr.cam0_from_head.as_ref(),

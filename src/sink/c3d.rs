@@ -448,29 +448,31 @@ pub fn join_c3d(
 impl C3dSink {
     /// Appends frame `f` (and empty frames for a gap before it) to the data.
     fn append(&mut self, f: &FrameResult) -> Result<(), SinkError> {
+        // C3D numbers frames from 1 in a 32-bit field: the index is an array position here.
+        let index = f.index.as_usize();
         if self.first_frame.is_none() {
-            self.first_frame = Some(f.index);
-            self.next_frame = f.index;
+            self.first_frame = Some(index);
+            self.next_frame = index;
         }
-        if f.index < self.next_frame {
+        if index < self.next_frame {
             return Err(SinkError::Other(format!(
                 "frame {} arrived after frame {}",
-                f.index,
+                index,
                 self.next_frame - 1
             )));
         }
-        let first = self.first_frame.unwrap_or(f.index);
-        if f.index + 1 > MAX_FRAME || f.index - first + 1 > MAX_FRAME {
+        let first = self.first_frame.unwrap_or(index);
+        if index + 1 > MAX_FRAME || index - first + 1 > MAX_FRAME {
             return Err(SinkError::Other(format!(
                 "C3D frame numbers end at {MAX_FRAME}; split the take (--frames)"
             )));
         }
-        let missing = (f.index - self.next_frame) as u64;
+        let missing = (index - self.next_frame) as u64;
         if missing > crate::limits::MAX_FRAME_GAP {
             return Err(SinkError::Other(format!(
                 "frame {} follows frame {}: a gap of {missing} frames is above the limit of {} \
                  (C3D would fill it with empty frames)",
-                f.index,
+                index,
                 self.next_frame.saturating_sub(1),
                 crate::limits::MAX_FRAME_GAP
             )));
@@ -514,9 +516,9 @@ impl C3dSink {
             }
         }
         if let Some(tc) = f.timecode {
-            self.first_timecode.get_or_insert((f.index, tc));
+            self.first_timecode.get_or_insert((index, tc));
         }
-        self.next_frame = f.index + 1;
+        self.next_frame = index + 1;
         self.data_len += bytes.len() as u64;
         match &mut self.data {
             Some(d) => d.write_with(|w| w.write_all(&bytes)),
@@ -752,7 +754,7 @@ mod tests {
             height: 1,
             data: vec![0],
         };
-        let mut f = FrameResult::new(index, 0, None, [image.clone(), image], 2);
+        let mut f = FrameResult::new(index.into(), 0, None, [image.clone(), image], 2);
         f.markers[0] = MarkerResult {
             status: BundleStatus::GapFilled,
             point_in_head: Some(Point3::new(index as f64, 1.0, 2.0)),

@@ -162,10 +162,11 @@ impl Sink for UsdSink {
         back_over_tail(file)?;
         if let Some(pose) = &fr.cam0_from_head {
             let origin = *self.head_origin.get_or_insert_with(|| pose.inverse());
-            self.head_poses.push((fr.index, origin * pose));
+            self.head_poses.push((fr.index.as_usize(), origin * pose));
         }
-        self.first.get_or_insert((fr.index, fr.timecode));
-        self.last = Some((fr.index, fr.timecode));
+        // USD time codes are the frame numbers.
+        self.first.get_or_insert((fr.index.as_usize(), fr.timecode));
+        self.last = Some((fr.index.as_usize(), fr.timecode));
         self.frames += 1;
         Ok(())
     }

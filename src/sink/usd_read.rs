@@ -345,7 +345,7 @@ mod tests {
                 height: 1,
                 data: vec![0],
             };
-            let mut fr = FrameResult::new(index, 0, None, [image.clone(), image], 0);
+            let mut fr = FrameResult::new(index.into(), 0, None, [image.clone(), image], 0);
             let points: Vec<Point3<f64>> = neutral
                 .positions
                 .iter()
@@ -406,7 +406,13 @@ mod tests {
             data: vec![0],
         };
         for index in 0..4 {
-            let mut fr = FrameResult::new(index, 0, None, [image.clone(), image.clone()], 0);
+            let mut fr = FrameResult::new(
+                crate::frame_index::FrameIndex::new(index),
+                0,
+                None,
+                [image.clone(), image.clone()],
+                0,
+            );
             fr.mesh = Some(Arc::new(neutral.positions.clone()));
             sink.write(&fr).unwrap();
         }

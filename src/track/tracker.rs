@@ -3,6 +3,7 @@
 
 use super::{DetectParams, Detection, LabeledFrame, Labeler, MarkerDetector};
 use crate::capture::GrayImage;
+use crate::frame_index::FrameIndex;
 
 /// Detection and labeling of a stereo stream: the entry type of the track stage.
 ///
@@ -47,7 +48,7 @@ impl StereoTracker {
     }
 
     /// Detects and labels frame `index` of the stream (cam0, cam1).
-    pub fn track(&mut self, index: usize, images: &[GrayImage; 2]) -> TrackedFrame {
+    pub fn track(&mut self, index: FrameIndex, images: &[GrayImage; 2]) -> TrackedFrame {
         let rois = self.labeler.predicted_rois();
         let windows = self.labeler.predicted_windows();
         let detect = &self.detect;

@@ -448,7 +448,7 @@ impl LiveSource {
             self.stats.frames_out += 1;
             return Ok(Some(LiveFrame {
                 frame: StereoFrame {
-                    index,
+                    index: index.into(),
                     timestamp_ns,
                     timecode: Some(timecode),
                     images: [a.image, b.image],
@@ -694,7 +694,7 @@ mod tests {
             .collect();
         assert_eq!(frames.len(), 40);
         for (i, f) in frames.iter().enumerate() {
-            assert_eq!(f.frame.index, i);
+            assert_eq!(f.frame.index.as_usize(), i);
             assert_eq!(f.frame.images[0], test_pattern(16, 8, i, 0));
             assert_eq!(f.frame.images[1], test_pattern(16, 8, i, 1));
             assert_eq!(f.frame.timestamp_ns, i as u64 * 10_000_000);
@@ -738,9 +738,9 @@ mod tests {
         let indices: Vec<usize> = std::iter::from_fn(|| src.next_stamped())
             .map(|f| {
                 let f = f.unwrap();
-                assert_eq!(frame_of(&f.frame.images[0]), f.frame.index);
-                assert_eq!(frame_of(&f.frame.images[1]), f.frame.index);
-                f.frame.index
+                assert_eq!(frame_of(&f.frame.images[0]), f.frame.index.as_usize());
+                assert_eq!(frame_of(&f.frame.images[1]), f.frame.index.as_usize());
+                f.frame.index.as_usize()
             })
             .collect();
         let expected: Vec<usize> = (0..30)
@@ -829,7 +829,7 @@ mod tests {
         let mut src = source(60, Default::default(), params);
         let mut last = 0;
         while let Some(f) = src.next_stamped() {
-            last = f.unwrap().frame.index;
+            last = f.unwrap().frame.index.as_usize();
             std::thread::sleep(Duration::from_millis(25)); // a consumer at 40 fps
         }
         let stats = src.stats();

@@ -42,6 +42,7 @@ use nalgebra::{Isometry3, Point2, Point3};
 
 use crate::camera::StereoRig;
 use crate::capture::GrayImage;
+use crate::frame_index::FrameIndex;
 use crate::timecode::Timecode;
 
 #[cfg(feature = "rerun")]
@@ -164,7 +165,7 @@ pub enum RerunSinkError {
     #[error("logging {entity} of frame {frame} to rerun: {source}")]
     Log {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// Entity path.
         entity: String,
         /// The SDK's error.
@@ -175,7 +176,7 @@ pub enum RerunSinkError {
     #[error("rerun sink, frame {frame}: {message}")]
     Frame {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// What is wrong.
         message: String,
     },
@@ -249,7 +250,7 @@ pub struct BundlePoint {
 #[derive(Debug, Clone, Copy, Default)]
 pub struct RerunFrame<'a> {
     /// Frame index.
-    pub frame: usize,
+    pub frame: FrameIndex,
     /// Capture timestamp, ns.
     pub timestamp_ns: u64,
     /// Timecode, when the source has one.

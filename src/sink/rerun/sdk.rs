@@ -13,6 +13,7 @@ use super::{
     RerunSinkError, RerunStats, RerunTarget, TIMELINE_CAPTURE, TIMELINE_FRAME, TIMELINE_TIMECODE,
     downscale,
 };
+use crate::frame_index::FrameIndex;
 use crate::pipeline::{BundleStatus, FrameResult, Metrics, SessionMeta, Sink, SinkError, Stage};
 
 /// Which per-frame entities held data in the previous frame (to clear them when a frame
@@ -141,7 +142,7 @@ impl RerunSink {
         let log_err = |entity: &str| {
             let entity = entity.to_string();
             move |source: rr::RecordingStreamError| RerunSinkError::Log {
-                frame: 0,
+                frame: FrameIndex::new(0),
                 entity,
                 source: Box::new(source),
             }
@@ -152,7 +153,7 @@ impl RerunSink {
         }
         if session.marker_names.len() > usize::from(u16::MAX) + 1 {
             return Err(RerunSinkError::Frame {
-                frame: 0,
+                frame: FrameIndex::new(0),
                 message: format!(
                     "{} markers: rerun labels at most 65536",
                     session.marker_names.len()
@@ -238,7 +239,10 @@ impl RerunSink {
             }
         };
         rec.reset_time();
-        rec.set_time_sequence(TIMELINE_FRAME, frame as i64);
+        rec.set_time_sequence(
+            TIMELINE_FRAME,
+            i64::try_from(frame.get()).unwrap_or(i64::MAX),
+        );
         rec.set_time(
             TIMELINE_CAPTURE,
             rr::TimeCell::from_duration_nanos(i64::try_from(f.timestamp_ns).unwrap_or(i64::MAX)),
@@ -255,7 +259,7 @@ impl RerunSink {
 
         // Camera images and labeled 2D markers.
         let log_images =
-            params.image_every > 0 && frame.is_multiple_of(params.image_every as usize);
+            params.image_every > 0 && frame.get().is_multiple_of(u64::from(params.image_every));
         let scale = params.image_downscale;
         for cam in 0..2 {
             if log_images && let Some(image) = f.images[cam] {
@@ -811,7 +815,7 @@ mod tests {
     fn log(sink: &mut RerunSink, d: &FrameData) {
         let timings = [("detect", 1.5), ("solve", 2.25)];
         let frame = RerunFrame {
-            frame: d.index,
+            frame: d.index.into(),
             timestamp_ns: d.index as u64 * 16_666_667,
             timecode: Some(&d.timecode),
             images: [Some(&d.images[0]), Some(&d.images[1])],
@@ -930,7 +934,7 @@ mod tests {
         Sink::begin(&mut sink, &meta).expect("begin");
         for i in 0..2 {
             let d = frame_data(i);
-            let mut fr = FrameResult::new(i, 0, Some(d.timecode), d.images.clone(), 3);
+            let mut fr = FrameResult::new(i.into(), 0, Some(d.timecode), d.images.clone(), 3);
             fr.markers[0] = MarkerResult {
                 status: BundleStatus::Observed,
                 point_in_cam0: Some(Point3::new(0.0, 0.0, 300.0)),
@@ -1021,13 +1025,13 @@ mod tests {
         log(&mut sink, &frame_data(0));
         // A frame with nothing but its index: every per-frame entity gets one clear row.
         sink.log_frame(&RerunFrame {
-            frame: 1,
+            frame: FrameIndex::new(1),
             ..Default::default()
         })
         .expect("empty frame");
         // A second empty frame logs nothing more.
         sink.log_frame(&RerunFrame {
-            frame: 2,
+            frame: FrameIndex::new(2),
             ..Default::default()
         })
         .expect("empty frame");
@@ -1061,7 +1065,7 @@ mod tests {
         let short = vec![Point3::origin(); 5];
         let err = sink
             .log_frame(&RerunFrame {
-                frame: 7,
+                frame: FrameIndex::new(7),
                 mesh_in_head: Some(&short),
                 ..Default::default()
             })
@@ -1072,7 +1076,7 @@ mod tests {
         let errors = vec![0.0f32; 4];
         let err = sink
             .log_frame(&RerunFrame {
-                frame: 8,
+                frame: FrameIndex::new(8),
                 mesh_in_head: Some(&mesh),
                 vertex_error_mm: Some(&errors),
                 ..Default::default()

@@ -60,6 +60,7 @@ use super::gate::{EpipolarGate, EpipolarGateParams};
 use super::search_windows::Rect;
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
+use crate::frame_index::FrameIndex;
 use crate::param_error::{ParamError, non_negative, positive};
 use crate::stereo::{Bundle, PairParams};
 
@@ -423,7 +424,7 @@ pub struct Labeler {
     /// Head pose (head → cam0) of the last labeled frame and the one before.
     pose: Option<Isometry3<f64>>,
     prev_pose: Option<Isometry3<f64>>,
-    last_frame: Option<usize>,
+    last_frame: Option<FrameIndex>,
     lost_count: usize,
     rois: [Option<(u32, u32, u32, u32)>; 2],
     /// Per camera: the search windows of the next frame (empty: search the ROI).
@@ -653,7 +654,7 @@ impl Labeler {
     }
 
     /// Labels one stereo frame's detections (cam0, cam1). Never panics on any input.
-    pub fn process(&mut self, frame: usize, detections: [&[Detection]; 2]) -> LabeledFrame {
+    pub fn process(&mut self, frame: FrameIndex, detections: [&[Detection]; 2]) -> LabeledFrame {
         let m = self.neutral.len();
         let mut stats = LabelStats {
             detections: [detections[0].len(), detections[1].len()],
@@ -676,9 +677,19 @@ impl Labeler {
                 .collect()
         });
         let steps = match self.last_frame {
-            Some(last) if frame > last && frame - last <= self.params.max_frame_gap => frame - last,
+            Some(last)
+                if frame > last
+                    && frame
+                        .since(last)
+                        .is_some_and(|n| n <= self.params.max_frame_gap as u64) =>
+            {
+                frame.since(last).map_or(1, |n| n as usize)
+            }
             Some(_) => {
-                tracing::debug!(frame, "frame gap or out of order: re-acquiring");
+                tracing::debug!(
+                    frame = frame.get(),
+                    "frame gap or out of order: re-acquiring"
+                );
                 self.reset();
                 1
             }
@@ -747,7 +758,10 @@ impl Labeler {
             self.lost_count = 0;
         }
         if self.lost_count >= self.params.lost_frames {
-            tracing::debug!(frame, "tracking lost: re-acquiring next frame");
+            tracing::debug!(
+                frame = frame.get(),
+                "tracking lost: re-acquiring next frame"
+            );
             self.reset();
         } else {
             self.prev_pose = if steps == 1 { self.pose } else { None };

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::dataset::Marker;
+use crate::frame_index::FrameIndex;
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion};
 
 /// Deterministic uniform numbers in [0, 1).
@@ -202,7 +203,7 @@ fn acquires_under_arbitrary_head_poses() {
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
         let mut lab = labeler(&layout, &pts);
         assert_eq!(lab.predicted_rois(), [None, None]);
-        let out = lab.process(0, [&obs[0].0, &obs[1].0]);
+        let out = lab.process(FrameIndex::new(0), [&obs[0].0, &obs[1].0]);
         let (ok, wrong) = count(&out, &truth);
         let vis = visible_both(&truth);
         assert_eq!(wrong, 0, "trial {trial}: {wrong} wrong labels");
@@ -258,7 +259,7 @@ fn no_acquisition_without_a_face() {
             diameter_px: 8.0,
         })
         .collect();
-    let out = lab.process(0, [&px0, &px1]);
+    let out = lab.process(FrameIndex::new(0), [&px0, &px1]);
     assert_eq!(out.stats.labeled, 0, "{:?}", out.stats);
     assert!(out.stats.acquiring && out.markers.iter().all(Option::is_none));
 }
@@ -310,7 +311,7 @@ fn run_sequence(
         };
         let obs = observe(&rig, &pose, &moved, &hidden, 0.15, spurious, &mut rng);
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
-        let out = lab.process(f, [&obs[0].0, &obs[1].0]);
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         let (ok, wrong) = count(&out, &truth);
         if (ok as f64) < 0.9 * visible_both(&truth) as f64 {
             eprintln!(
@@ -415,7 +416,7 @@ fn markers_in_contact_are_dropped_not_swapped() {
             }
         }
         let truth = [merged[0].1.clone(), merged[1].1.clone()];
-        let out = lab.process(f, [&merged[0].0, &merged[1].0]);
+        let out = lab.process(FrameIndex::new(f), [&merged[0].0, &merged[1].0]);
         let (_, wrong) = count(&out, &truth);
         assert_eq!(wrong, 0, "frame {f}");
         if out.markers[a].is_none() || out.markers[b].is_none() {
@@ -447,24 +448,24 @@ fn never_panics_on_garbage_and_recovers() {
         bad(640.0, 512.0),
     ];
     for f in [0, 1, 1, 0, 7, 1000, usize::MAX] {
-        let out = lab.process(f, [&garbage, &[]]);
+        let out = lab.process(FrameIndex::from(f), [&garbage, &[]]);
         assert_eq!(out.markers.len(), layout.len());
-        let out = lab.process(f, [&garbage, &garbage]);
+        let out = lab.process(FrameIndex::from(f), [&garbage, &garbage]);
         assert_eq!(out.stats.labeled, 0);
     }
     // Then a real face: acquired.
     let mut rng = Rng::new(1);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let obs = observe(&rig, &pose, &pts, &[], 0.1, 0, &mut rng);
-    let out = lab.process(3, [&obs[0].0, &obs[1].0]);
+    let out = lab.process(FrameIndex::new(3), [&obs[0].0, &obs[1].0]);
     assert!(out.stats.labeled > 50, "{:?}", out.stats);
     // A frame of nothing, a few times: lost, then re-acquired.
     for f in 4..8 {
-        let out = lab.process(f, [&[], &[]]);
+        let out = lab.process(FrameIndex::new(f), [&[], &[]]);
         assert_eq!(out.stats.labeled, 0);
     }
     let truth = [obs[0].1.clone(), obs[1].1.clone()];
-    let out = lab.process(8, [&obs[0].0, &obs[1].0]);
+    let out = lab.process(FrameIndex::new(8), [&obs[0].0, &obs[1].0]);
     assert!(out.stats.acquiring && out.stats.labeled > 50);
     assert_eq!(count(&out, &truth).1, 0);
 }
@@ -520,7 +521,7 @@ fn search_windows_hold_every_label_and_give_way_after_a_drop() {
         };
         let obs = observe(&rig, &pose, &pts, &hidden, 0.15, 5, &mut rng);
         let windows: [Vec<Rect>; 2] = lab.predicted_windows().map(<[Rect]>::to_vec);
-        let out = lab.process(f, [&obs[0].0, &obs[1].0]);
+        let out = lab.process(FrameIndex::new(f), [&obs[0].0, &obs[1].0]);
         if windows[0].is_empty() {
             continue;
         }
@@ -563,7 +564,7 @@ fn search_windows_hold_every_label_and_give_way_after_a_drop() {
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     for f in 0..3 {
         let obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
-        off.process(f, [&obs[0].0, &obs[1].0]);
+        off.process(FrameIndex::new(f), [&obs[0].0, &obs[1].0]);
         assert!(off.predicted_windows().iter().all(|w| w.is_empty()));
         assert!(off.predicted_rois().iter().all(Option::is_some));
     }
