@@ -971,13 +971,22 @@ fn background_plane(
                 })
         })
     };
-    let mut dev: Vec<f64> = border().map(|(_, _, v)| (v - median).abs()).collect();
-    let mid = dev.len() / 2;
-    let mad = if dev.is_empty() {
-        0.0
-    } else {
-        *dev.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
+    // The median absolute deviation from a histogram: pixels and the median are whole
+    // levels, so the deviations are too (no allocation or sort per blob).
+    let mut histogram = [0u32; 256];
+    let mut count = 0usize;
+    for (_, _, v) in border() {
+        histogram[((v - median).abs() as usize).min(255)] += 1;
+        count += 1;
+    }
+    let mut below = 0usize;
+    let mad = histogram
+        .iter()
+        .position(|&h| {
+            below += h as usize;
+            below > count / 2
+        })
+        .map_or(0.0, |d| d as f64);
     let limit = (2.5 * 1.4826 * mad).max(2.0);
     // Normal equations of the plane over the kept border pixels.
     let mut m = nalgebra::Matrix3::<f64>::zeros();
