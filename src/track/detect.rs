@@ -911,9 +911,10 @@ fn measure_blob(
     {
         return Err(RejectReason::LowContrast);
     }
-    // Weighted centroid over the box grown by 2, against the ring's background plane (a
-    // constant background would weigh the darker side of shaded skin around a thin,
-    // foreshortened dot, and pull its centre there).
+    // Weighted centroid over the box grown by 2, against the background: the ring's median,
+    // or for a thin blob a plane fitted to the ring (a constant background would weigh the
+    // darker side of shaded skin around a thin, foreshortened dot, and pull its centre
+    // there).
     let fit = (roundness < THIN_BLOB_ROUNDNESS)
         .then(|| background_plane(image, (rx0, ry0, rx1, ry1), background));
     let plane = |x: usize, y: usize| fit.as_ref().map_or(background, |p| p(x, y));
