@@ -106,7 +106,7 @@ fn enhance_reads_the_usd_our_sink_writes() {
         name: "take".into(),
         fps: 60.0,
         timecode_rate: None,
-        first_frame: 0,
+        first_frame: helmcap::frame_index::FrameIndex::new(0),
         frame_count: Some(2),
         layout: Arc::new(Default::default()),
         neutral_markers_head: Arc::new(Vec::new()),

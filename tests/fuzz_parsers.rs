@@ -409,7 +409,7 @@ fn c3d(cases: usize) {
         name: "fuzz".into(),
         fps: 60.0,
         timecode_rate: None,
-        first_frame: 0,
+        first_frame: helmcap::frame_index::FrameIndex::new(0),
         frame_count: None,
         layout: Arc::new(layout.clone()),
         neutral_markers_head: Arc::new(Vec::new()),

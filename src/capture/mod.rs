@@ -25,6 +25,7 @@ pub use replay::{Replay, ReplayParams, ReplayStats, SessionInfo, StereoFrame};
 use std::path::PathBuf;
 
 use crate::camera::StereoRig;
+use crate::frame_index::FrameIndex;
 
 /// A source of stereo frames for the pipeline: a replayed recording or live cameras.
 pub trait FrameSource: Send {
@@ -89,7 +90,7 @@ pub enum CaptureError {
     #[error("frame {frame}: {path}: cannot decode image: {message}")]
     Decode {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// The image file.
         path: PathBuf,
         /// Decoder message.
@@ -101,7 +102,7 @@ pub enum CaptureError {
     )]
     Size {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// The image file.
         path: PathBuf,
         /// Found width.
@@ -120,7 +121,7 @@ pub enum CaptureError {
     )]
     VideoEnded {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// The video file.
         path: PathBuf,
         /// Frames decoded before the end.
@@ -132,7 +133,7 @@ pub enum CaptureError {
     #[error("frame {frame}: missing image {path}")]
     MissingImage {
         /// Frame index.
-        frame: usize,
+        frame: FrameIndex,
         /// The expected file.
         path: PathBuf,
     },

@@ -853,7 +853,12 @@ mod tests {
         assert_eq!(report.frames_unaccounted, 0);
         assert!(report.queue_high_water <= 4);
         let replay = Replay::open(&root, ReplayParams::default()).unwrap();
-        let written: Vec<usize> = replay.info().frames.iter().map(|f| f.0).collect();
+        let written: Vec<usize> = replay
+            .info()
+            .frames
+            .iter()
+            .map(|f| f.0.as_usize())
+            .collect();
         assert_eq!(written.len() as u64, report.frames_written);
         assert!(written.iter().all(|i| !report.lost_frames.contains(i)));
         for f in Replay::open(&root, ReplayParams::default()).unwrap() {

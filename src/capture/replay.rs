@@ -39,7 +39,7 @@ pub struct SessionInfo {
     /// Per frame: index, timestamp (ns) and timecode (None where `frames.csv` has none).
     /// For a video session without `frames.csv` the timestamps here are nominal
     /// (`index / fps`); the frames delivered carry the container's.
-    pub frames: Vec<(usize, u64, Option<Timecode>)>,
+    pub frames: Vec<(FrameIndex, u64, Option<Timecode>)>,
     /// The capture profile `session.toml` names (`profile = "..."`, relative to the
     /// session folder), if any.
     pub profile: Option<PathBuf>,
@@ -122,7 +122,7 @@ fn read_frames_csv(
     frames_path: &Path,
     fps: f64,
     timecode_rate: &mut Option<TimecodeRate>,
-) -> Result<Vec<(usize, u64, Option<Timecode>)>, CaptureError> {
+) -> Result<Vec<(FrameIndex, u64, Option<Timecode>)>, CaptureError> {
     let frames_text = std::fs::read_to_string(frames_path).map_err(|e| io_err(frames_path, e))?;
     let ferr = |line: usize, message: String| CaptureError::Format {
         path: frames_path.to_path_buf(),
@@ -139,7 +139,7 @@ fn read_frames_csv(
             ));
         }
     }
-    let mut frames: Vec<(usize, u64, Option<Timecode>)> = Vec::new();
+    let mut frames: Vec<(FrameIndex, u64, Option<Timecode>)> = Vec::new();
     for (i, line) in lines {
         if line.trim().is_empty() {
             continue;
@@ -148,7 +148,7 @@ fn read_frames_csv(
         if f.len() < 2 {
             return Err(ferr(i + 1, "expected frame,timestamp_ns,timecode".into()));
         }
-        let index: usize = f[0].parse().map_err(|_| {
+        let index: u64 = f[0].parse().map_err(|_| {
             ferr(
                 i + 1,
                 format!(
@@ -166,7 +166,7 @@ fn read_frames_csv(
                 ),
             )
         })?;
-        if index as u64 > crate::limits::MAX_FRAME_NUMBER {
+        if index > crate::limits::MAX_FRAME_NUMBER {
             return Err(ferr(
                 i + 1,
                 format!(
@@ -175,8 +175,8 @@ fn read_frames_csv(
                 ),
             ));
         }
-        let previous = frames.last().map_or(0, |(p, _, _)| *p as u64);
-        if index as u64 > previous + crate::limits::MAX_FRAME_GAP {
+        let previous = frames.last().map_or(0, |(p, _, _)| p.get());
+        if index > previous + crate::limits::MAX_FRAME_GAP {
             return Err(ferr(
                 i + 1,
                 format!(
@@ -187,7 +187,7 @@ fn read_frames_csv(
             ));
         }
         if let Some((prev, prev_ts, _)) = frames.last()
-            && (index <= *prev || ts < *prev_ts)
+            && (index <= prev.get() || ts < *prev_ts)
         {
             return Err(ferr(i + 1, format!("frame {index} is out of order")));
         }
@@ -210,7 +210,7 @@ fn read_frames_csv(
             };
             Some(Timecode::parse_at(label, rate).map_err(|e| ferr(i + 1, e.to_string()))?)
         };
-        frames.push((index, ts, timecode));
+        frames.push((FrameIndex::new(index), ts, timecode));
     }
     if frames.is_empty() {
         return Err(ferr(2, "no frames".into()));
@@ -229,7 +229,7 @@ fn rate_for_label(fps: f64, label: &str) -> Option<TimecodeRate> {
 fn load_image(
     root: &Path,
     camera: &str,
-    index: usize,
+    index: FrameIndex,
     rig: Option<&StereoRig>,
     conversion: GrayConversion,
 ) -> Result<GrayImage, CaptureError> {
@@ -247,7 +247,7 @@ fn load_image(
 
 /// The image when its size is the calibration's, else [`CaptureError::Size`].
 fn check_size(
-    index: usize,
+    index: FrameIndex,
     path: PathBuf,
     img: GrayImage,
     rig: Option<&StereoRig>,
@@ -413,7 +413,7 @@ impl Replay {
                 (0..v0.frame_count())
                     .map(|i| {
                         (
-                            i,
+                            FrameIndex::from(i),
                             (i as f64 * 1e9 / session.fps).round() as u64,
                             clock.map(|c| c.stamp(i as u64)),
                         )
@@ -423,7 +423,7 @@ impl Replay {
             _ => {
                 let frames = read_frames_csv(&frames_path, session.fps, &mut timecode_rate)?;
                 if let (Some([v0, _]), Some((last, _, _))) = (&videos, frames.last())
-                    && *last >= v0.frame_count()
+                    && last.as_usize() >= v0.frame_count()
                 {
                     return Err(CaptureError::Format {
                         path: frames_path,
@@ -488,7 +488,7 @@ impl Replay {
 
     /// Keeps only the frames whose number (as in `frames.csv`) lies in `range`, from the
     /// start of the replay (to split a long take); returns how many remain.
-    pub fn select_frames(&mut self, range: std::ops::RangeInclusive<usize>) -> usize {
+    pub fn select_frames(&mut self, range: std::ops::RangeInclusive<FrameIndex>) -> usize {
         self.info
             .frames
             .retain(|(index, _, _)| range.contains(index));
@@ -503,7 +503,10 @@ impl Replay {
 
     /// Both images of frame `index` (and the container's timestamp for a video session
     /// without `frames.csv`).
-    fn load_pair(&mut self, index: usize) -> Result<([GrayImage; 2], Option<u64>), CaptureError> {
+    fn load_pair(
+        &mut self,
+        index: FrameIndex,
+    ) -> Result<([GrayImage; 2], Option<u64>), CaptureError> {
         let conversion = self.params.gray_conversion;
         let rig = self.rig.as_ref();
         let (first, second, second_path, timestamp) = match &mut self.media {
@@ -529,7 +532,10 @@ impl Replay {
             } => {
                 let [r0, r1] = &mut **readers;
                 let path1 = r1.path().to_path_buf();
-                let (a, b) = rayon::join(|| r0.read_at(index), || r1.read_at(index));
+                let (a, b) = rayon::join(
+                    || r0.read_at(index.as_usize()),
+                    || r1.read_at(index.as_usize()),
+                );
                 let timestamp = match (&a, *container_timestamps) {
                     (Ok(f), true) => Some(f.timestamp_ns),
                     _ => None,
@@ -567,7 +573,7 @@ impl Replay {
                 Ok((images, container_ts)) => {
                     self.stats.frames_out += 1;
                     return Some(Ok(StereoFrame {
-                        index: index.into(),
+                        index,
                         timestamp_ns: container_ts.unwrap_or(ts),
                         timecode: tc,
                         images,

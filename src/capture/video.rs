@@ -206,7 +206,7 @@ impl VideoReader {
 
     fn ended(&self, index: usize) -> CaptureError {
         CaptureError::VideoEnded {
-            frame: index,
+            frame: index.into(),
             path: self.path.clone(),
             decoded: self.position,
             declared: self.frame_count,
@@ -221,7 +221,7 @@ impl VideoReader {
     /// naming the file and frame when it was passed already or the decoder failed.
     pub fn read_at(&mut self, index: usize) -> Result<VideoFrame, CaptureError> {
         let decode_err = |message: String| CaptureError::Decode {
-            frame: index,
+            frame: index.into(),
             path: self.path.clone(),
             message,
         };

@@ -218,7 +218,8 @@ fn load_input(
             .with_context(|| format!("opening session {}", input.display()))?;
         let rig = replay.rig().cloned();
         let profile = replay.info().profile.clone();
-        if replay.select_frames(args.frame..=args.frame) == 0 {
+        let index = FrameIndex::from(args.frame);
+        if replay.select_frames(index..=index) == 0 {
             bail!(
                 "{}: the session has no frame {}",
                 input.display(),

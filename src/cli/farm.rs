@@ -174,8 +174,13 @@ fn job(args: JobArgs) -> anyhow::Result<()> {
         takes.push(JobTake {
             name,
             session: absolute(&session)?,
-            chunks: chunk_ranges(first.0, last.0, args.chunk, args.overlap)
-                .map_err(|e| anyhow::anyhow!("--chunk: {e}"))?,
+            chunks: chunk_ranges(
+                first.0.as_usize(),
+                last.0.as_usize(),
+                args.chunk,
+                args.overlap,
+            )
+            .map_err(|e| anyhow::anyhow!("--chunk: {e}"))?,
         });
     }
     let mut options = Vec::new();

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use helmcap::camera::StereoRig;
 use helmcap::capture::{CaptureError, FrameSource, LiveSource, LiveStats, StereoFrame};
+use helmcap::frame_index::FrameIndex;
 use helmcap::pipeline::GroundTruth;
 
 use super::take::{TakeArgs, print_summary, stop_flag};
@@ -131,7 +132,7 @@ pub fn run(args: LiveArgs) -> anyhow::Result<()> {
     config.take.name = "live".into();
     config.take.timecode_rate = Some(source.timecode_rate());
     config.take.frame_count = args.frames;
-    config.take.first_frame = 0;
+    config.take.first_frame = FrameIndex::new(0);
     config.ground_truth = ground_truth;
     if let Some(stages) = dense {
         stages.install(&mut config, &take.dataset);

@@ -9,6 +9,7 @@ use anyhow::{Context, bail};
 use helmcap::capture::{FrameSource, Replay, ReplayParams};
 use helmcap::dataset::Dataset;
 use helmcap::farm::{Fingerprint, TakeManifest, list_outputs, session_fingerprint};
+use helmcap::frame_index::FrameIndex;
 use helmcap::pipeline::{
     FrameResult, GroundTruth, LabelRestarts, Metrics, PipelineConfig, SessionMeta, Sink, SinkError,
 };
@@ -145,7 +146,7 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
     )
     .with_context(|| format!("opening session {}", args.session.display()))?;
     let take_frames = match (source.info().frames.first(), source.info().frames.last()) {
-        (Some(a), Some(b)) => (a.0, b.0),
+        (Some(a), Some(b)) => (a.0.as_usize(), b.0.as_usize()),
         _ => bail!("session {} has no frames", args.session.display()),
     };
     let mut written = take_frames;
@@ -155,8 +156,11 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         let in_range = |i: usize| range.contains(&i);
         let frames = &source.info().frames;
         let (Some(first), Some(last)) = (
-            frames.iter().map(|f| f.0).find(|&i| in_range(i)),
-            frames.iter().map(|f| f.0).rfind(|&i| in_range(i)),
+            frames.iter().map(|f| f.0.as_usize()).find(|&i| in_range(i)),
+            frames
+                .iter()
+                .map(|f| f.0.as_usize())
+                .rfind(|&i| in_range(i)),
         ) else {
             bail!(
                 "--frames {r}: the session has no frame in {}..={}",
@@ -166,13 +170,13 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         };
         written = (*range.start(), (*range.end()).min(take_frames.1));
         let run_from = range.start().saturating_sub(args.warm_up);
-        source.select_frames(run_from..=last);
+        source.select_frames(FrameIndex::from(run_from)..=FrameIndex::from(last));
         if args.warm_up > 0 {
             warm_up_from = source
                 .info()
                 .frames
                 .first()
-                .map(|f| f.0)
+                .map(|f| f.0.as_usize())
                 .filter(|&f| f < first);
         }
     }
@@ -195,17 +199,21 @@ pub fn replay(args: &ReplayArgs) -> anyhow::Result<ReplayOutcome> {
         .unwrap_or_else(|| "take".into());
     config.take.name = take_name.clone();
     config.take.timecode_rate = info.timecode_rate;
-    config.take.write_from = written.0;
+    config.take.write_from = FrameIndex::from(written.0);
     config.take.frame_count = Some(
         info.frames
             .iter()
-            .filter(|f| f.0 >= written.0 && f.0 <= written.1)
+            .filter(|f| (written.0..=written.1).contains(&f.0.as_usize()))
             .count(),
     );
-    config.take.first_frame = written.0;
+    config.take.first_frame = FrameIndex::from(written.0);
     config.track.label_restarts = match args.relabel_every {
         Some(0) => bail!("--relabel-every must be at least 1 frame"),
-        Some(n) => LabelRestarts::of_chunks(take_frames.0, n, args.relabel_lead),
+        Some(n) => LabelRestarts::of_chunks(
+            FrameIndex::from(take_frames.0),
+            n as u64,
+            args.relabel_lead as u64,
+        ),
         None => None,
     };
     let settings = settings_fingerprint(args, &config, &take.dataset, &profile)?;

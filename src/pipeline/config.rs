@@ -95,25 +95,25 @@ pub struct TrackConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LabelRestarts {
     /// Period, frames (at least 1).
-    pub every: usize,
+    pub every: u64,
     /// Phase, frames (below `every`).
-    pub at: usize,
+    pub at: u64,
 }
 
 impl LabelRestarts {
     /// The restarts of a take chunked from frame `first` into chunks of `chunk` frames,
     /// each warmed up by `warm_up` frames: the frames `first + k·chunk − warm_up`, where
     /// the chunks' warm-ups start. `None` for a chunk size of 0.
-    pub fn of_chunks(first: usize, chunk: usize, warm_up: usize) -> Option<Self> {
+    pub fn of_chunks(first: FrameIndex, chunk: u64, warm_up: u64) -> Option<Self> {
         (chunk > 0).then(|| Self {
             every: chunk,
-            at: (first % chunk + chunk - warm_up % chunk) % chunk,
+            at: (first.get() % chunk + chunk - warm_up % chunk) % chunk,
         })
     }
 
     /// Whether labeling restarts on frame `index`.
     pub fn restarts_at(&self, index: FrameIndex) -> bool {
-        self.every > 0 && index.get() % self.every as u64 == self.at as u64
+        self.every > 0 && index.get() % self.every == self.at
     }
 }
 
@@ -186,14 +186,14 @@ pub struct TakeInfo {
     /// Timecode rate of the source, when known. Default None.
     pub timecode_rate: Option<TimecodeRate>,
     /// Index of the first frame the sinks get. Default 0.
-    pub first_frame: usize,
+    pub first_frame: FrameIndex,
     /// Frames the sinks will get, when known (for sinks and progress). Default None.
     pub frame_count: Option<usize>,
     /// Frames before this index are warm-up: they go through every stage (the labeler,
     /// the stabilizer's held pose and the solver's temporal preference learn from them)
     /// but reach no sink and count in no metric but `warm_up_frames`. A chunk of a long
     /// take uses it to start where a single pass would be. Default 0 (none).
-    pub write_from: usize,
+    pub write_from: FrameIndex,
 }
 
 impl Default for TakeInfo {
@@ -201,9 +201,9 @@ impl Default for TakeInfo {
         Self {
             name: "take".into(),
             timecode_rate: None,
-            first_frame: 0,
+            first_frame: FrameIndex::new(0),
             frame_count: None,
-            write_from: 0,
+            write_from: FrameIndex::new(0),
         }
     }
 }
@@ -215,21 +215,21 @@ mod tests {
     #[test]
     fn label_restarts_fall_where_chunks_start_their_warm_up() {
         // Chunks of 600 from frame 0, 60 of warm-up: warm-ups start at 540, 1140, ...
-        let r = LabelRestarts::of_chunks(0, 600, 60).unwrap();
+        let r = LabelRestarts::of_chunks(FrameIndex::new(0), 600, 60).unwrap();
         let hits: Vec<u64> = (0..2000)
             .filter(|&f| r.restarts_at(FrameIndex::new(f)))
             .collect();
         assert_eq!(hits, [540, 1140, 1740]);
         // A take starting at frame 1000, chunks of 80, warm-up 60: 1020, 1100, ...
-        let r = LabelRestarts::of_chunks(1000, 80, 60).unwrap();
+        let r = LabelRestarts::of_chunks(FrameIndex::new(1000), 80, 60).unwrap();
         let hits: Vec<u64> = (1000..1200)
             .filter(|&f| r.restarts_at(FrameIndex::new(f)))
             .collect();
         assert_eq!(hits, [1020, 1100, 1180]);
         // A warm-up longer than a chunk: the same residue.
-        let r = LabelRestarts::of_chunks(0, 50, 120).unwrap();
+        let r = LabelRestarts::of_chunks(FrameIndex::new(0), 50, 120).unwrap();
         let at = |f: u64| r.restarts_at(FrameIndex::new(f));
         assert!(at(30) && at(80) && !at(0));
-        assert_eq!(LabelRestarts::of_chunks(0, 0, 60), None);
+        assert_eq!(LabelRestarts::of_chunks(FrameIndex::new(0), 0, 60), None);
     }
 }

@@ -633,13 +633,13 @@ fn sink_stage(
     fps: f64,
     solves: bool,
     face_vertices: Option<&std::ops::RangeInclusive<u32>>,
-    write_from: usize,
+    write_from: FrameIndex,
 ) -> Result<Metrics, PipelineError> {
     let mut collector = MetricsCollector::new(marker_count, fps, solves);
     let mut failure: Option<PipelineError> = None;
     let mut warm_up = 0u64;
     for mut f in input.iter() {
-        if f.index < FrameIndex::from(write_from) {
+        if f.index < write_from {
             warm_up += 1;
             continue;
         }

@@ -7,6 +7,7 @@ use super::frame::FrameResult;
 use super::metrics::Metrics;
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
+use crate::frame_index::FrameIndex;
 use crate::mesh::Mesh;
 use crate::timecode::TimecodeRate;
 
@@ -20,7 +21,7 @@ pub struct SessionMeta {
     /// Timecode rate, when the source stamps frames with timecode.
     pub timecode_rate: Option<TimecodeRate>,
     /// Index of the first frame the source will deliver.
-    pub first_frame: usize,
+    pub first_frame: FrameIndex,
     /// Frames the source will deliver, when known (a replay).
     pub frame_count: Option<usize>,
     /// The marker layout: [`FrameResult::markers`] is in this order.

@@ -140,7 +140,8 @@ fn camera_images(
             }
         };
         sheet.camera = replay.info().cameras.first().cloned();
-        if replay.select_frames(frame..=frame) == 0 {
+        let index = crate::frame_index::FrameIndex::from(frame);
+        if replay.select_frames(index..=index) == 0 {
             sheet.notes.push(format!(
                 "frame {frame} is not in the session {}",
                 session.display()

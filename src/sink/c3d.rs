@@ -735,7 +735,7 @@ mod tests {
             name: "long".into(),
             fps: 60.0,
             timecode_rate: None,
-            first_frame,
+            first_frame: first_frame.into(),
             frame_count: None,
             layout: Arc::new(MarkerLayout { markers }),
             neutral_markers_head: Arc::new(Vec::new()),

@@ -311,7 +311,7 @@ mod tests {
             name: "t".into(),
             fps,
             timecode_rate: None,
-            first_frame,
+            first_frame: first_frame.into(),
             frame_count: None,
             layout: Arc::new(Default::default()),
             neutral_markers_head: Arc::new(Vec::new()),

@@ -332,7 +332,12 @@ impl LiveConfig {
                     if rig.is_none() {
                         rig = replay.rig().cloned();
                     }
-                    let frames = info.frames.iter().map(|f| f.0 + 1).max().unwrap_or(0);
+                    let frames = info
+                        .frames
+                        .iter()
+                        .map(|f| f.0.as_usize() + 1)
+                        .max()
+                        .unwrap_or(0);
                     let mk = |i: usize| -> Box<dyn CameraDevice> {
                         let camera = info.cameras.get(i).cloned().unwrap_or_default();
                         Box::new(TestCamera::new(

@@ -921,7 +921,7 @@ mod tests {
             name: "take".into(),
             fps: 60.0,
             timecode_rate: Some(TimecodeRate::FPS_30),
-            first_frame: 0,
+            first_frame: crate::frame_index::FrameIndex::new(0),
             frame_count: Some(2),
             layout: Arc::new(layout),
             neutral_markers_head: Arc::new(vec![Point3::origin(); 3]),
