@@ -107,7 +107,7 @@ fn capture_error_frame(e: &CaptureError) -> Option<FrameIndex> {
     match e {
         CaptureError::Decode { frame, .. }
         | CaptureError::Size { frame, .. }
-        | CaptureError::MissingImage { frame, .. } => Some(FrameIndex::from(*frame)),
+        | CaptureError::MissingImage { frame, .. } => Some(*frame),
         _ => None,
     }
 }
