@@ -110,7 +110,7 @@ fn ict_low_passed_combinations_get_their_details_back() {
         pct(hf[0], hf[1]),
         pct(hf[0], hf[2]),
     );
-    // Measured 29 % of the high band against a ceiling of 32 %: low-passing the whole
+    // Measured 30 % of the high band against a ceiling of 30 %: low-passing the whole
     // shape also removes part of its low band (f(f(x)) ≠ f(x)), which the enhancement
     // keeps by design, so even the truth's own details cannot do much better.
     assert!(hf[1] < 0.8 * hf[0], "{} vs {}", hf[1], hf[0]);

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use helmcap::capture::GrayImage;
-use helmcap::numeric::upper_median;
+use helmcap::numeric::{SplitMix64, upper_median};
 use helmcap::sink::rerun::{
     BundlePoint, MarkerPixel, MeshTopology, RerunFrame, RerunParams, RerunSession, RerunSink,
     RerunTarget,
@@ -15,6 +15,7 @@ use helmcap::sink::rerun::{
 use helmcap::take::ViewerSpec;
 use helmcap::timecode::{Timecode, TimecodeRate};
 use nalgebra::{Isometry3, Point2, Point3};
+use rand::RngCore;
 
 /// How to reach a viewer: `spawn` or `connect[=ADDR]`.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -153,15 +154,12 @@ pub fn run_bench(a: RerunBenchArgs) -> anyhow::Result<()> {
         }),
     };
     // Camera-like images: a smooth gradient plus a little sensor noise.
-    let mut state = 0x2545_f491_u32;
+    let mut rng = SplitMix64::new(0x2545_f491);
     let mut image = || {
         let data = (0..a.width * a.height)
             .map(|i| {
-                state ^= state << 13;
-                state ^= state >> 17;
-                state ^= state << 5;
                 let (x, y) = (i % a.width, i / a.width);
-                (40 + (x + y) * 100 / (a.width + a.height)) as u8 + (state % 6) as u8
+                (40 + (x + y) * 100 / (a.width + a.height)) as u8 + (rng.next_u64() % 6) as u8
             })
             .collect();
         GrayImage {

@@ -2,12 +2,14 @@
 //! and the seed-and-grow patches of the compressed shape space (§4.2).
 
 use nalgebra::Point3;
+use rand::RngCore;
 
 use super::EnhanceError;
 use crate::dataset::Dataset;
 use crate::dataset::actor::{Actor, Region};
 use crate::dataset::markers::vertex_motion;
 use crate::mesh::{Mesh, Topology, edge_graph_distances};
+use crate::numeric::SplitMix64;
 
 /// Names of the four voluntary regions, in the order used everywhere in this module.
 pub const REGION_NAMES: [&str; 4] = ["mouth_l", "mouth_r", "brow_l", "brow_r"];
@@ -186,7 +188,7 @@ impl RegionWeights {
 }
 
 /// Random seed-and-grow patches of about `patch_vertices` vertices (Bermano et al. 2014
-/// §4.2, Fig. 3): `⌈#V / patch_vertices⌉` seeds drawn at random (seeded xorshift), grown
+/// §4.2, Fig. 3): `⌈#V / patch_vertices⌉` seeds drawn at random (seeded [`SplitMix64`]), grown
 /// together breadth-first over the edge graph, one ring per round, each vertex joining the
 /// first patch to reach it. Returns the patch of every triangle (that of its first vertex)
 /// and the number of patches. Vertices unreachable from any seed (other connected pieces)
@@ -195,13 +197,8 @@ pub fn seed_and_grow_patches(mesh: &Mesh, patch_vertices: usize, seed: u64) -> (
     let n = mesh.vertex_count();
     let topology = Topology::new(mesh);
     let mut label = vec![u32::MAX; n];
-    let mut rng = seed ^ 0x9e37_79b9_7f4a_7c15;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        rng
-    };
+    let mut rng = SplitMix64::new(seed);
+    let mut next = || rng.next_u64();
     let want = n.div_ceil(patch_vertices.max(1)).max(1);
     let mut frontier: Vec<u32> = Vec::new();
     let mut count = 0u32;

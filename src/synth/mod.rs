@@ -36,13 +36,13 @@ use std::path::PathBuf;
 use nalgebra::{
     IsometryMatrix3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
 };
-use rand::SeedableRng;
-use rand::rngs::StdRng;
+use rand::RngCore;
 
 use crate::camera::{Camera, StereoRig};
 use crate::dataset::MarkerLayout;
 use crate::dataset::actor::Actor;
 use crate::mesh::Mesh;
+use crate::numeric::{SplitMix64, standard_normal};
 use crate::timecode::{Timecode, TimecodeRate};
 pub use crate::track::profile::Polarity;
 
@@ -790,27 +790,25 @@ pub(crate) fn shade(scene: &Scene<'_>, params: &SynthParams) -> View {
 fn normal_table() -> &'static [f32] {
     static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
-        let mut rng = StdRng::seed_from_u64(0x006e_6f69_7365);
-        (0..1 << 16).map(|_| normal(&mut rng) as f32).collect()
+        let mut rng = SplitMix64::new(0x006e_6f69_7365);
+        (0..1 << 16)
+            .map(|_| standard_normal(&mut rng) as f32)
+            .collect()
     })
 }
 
 /// Standard normal samples, one per index, from [`normal_table`] indexed by a seeded
-/// xorshift64* generator (16 bits per sample, four per draw).
+/// [`SplitMix64`] (16 bits per sample, four per draw).
 struct NoiseStream {
-    state: u64,
+    rng: SplitMix64,
     bits: u64,
     table: &'static [f32],
 }
 
 impl NoiseStream {
     fn new(seed: u64) -> Self {
-        let mut state = seed ^ 0x2545_f491_4f6c_dd1d;
-        if state == 0 {
-            state = 1;
-        }
         Self {
-            state,
+            rng: SplitMix64::new(seed),
             bits: 0,
             table: normal_table(),
         }
@@ -819,20 +817,16 @@ impl NoiseStream {
     /// The sample for index `i` (indices must come in order from 0).
     fn sample(&mut self, i: usize) -> f32 {
         if i.is_multiple_of(4) {
-            // xorshift64*
-            self.state ^= self.state >> 12;
-            self.state ^= self.state << 25;
-            self.state ^= self.state >> 27;
-            self.bits = self.state.wrapping_mul(0x2545_f491_4f6c_dd1d);
+            self.bits = self.rng.next_u64();
         }
         self.table[((self.bits >> (16 * (i % 4))) & 0xffff) as usize]
     }
 }
 
 /// Adds Gaussian sensor noise (seeded) and quantizes to 8 bits. Samples come from a
-/// table of 65 536 standard normal values (Box-Muller) indexed by a seeded xorshift
-/// generator, which is ~20× faster than drawing each sample and statistically the same for
-/// pixel noise.
+/// table of 65 536 standard normal values (Box-Muller) indexed by a seeded generator,
+/// which is ~20× faster than drawing each sample and statistically the same for pixel
+/// noise.
 pub(crate) fn to_gray8(radiance: &[f32], noise_dn: f64, seed: u64) -> Vec<u8> {
     let mut noise = NoiseStream::new(seed);
     radiance
@@ -863,13 +857,6 @@ pub(crate) fn to_u16(radiance: &[f32], noise_dn: f64, seed: u64, depth: BitDepth
             q << shift
         })
         .collect()
-}
-
-/// One standard normal sample by the Box-Muller transform.
-fn normal(rng: &mut impl rand::Rng) -> f64 {
-    let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// Samples of an image to write.
