@@ -163,12 +163,13 @@ pub struct LabelParams {
     /// smallest to its largest magnification, see `Labeler::dot_sized`), widened by 2 px
     /// either way (the antialiased rim and blur). Blobs of another size (freckles, pores,
     /// moles of another size, the pupils) are not taken for markers. The range for a
-    /// marker labeled since the last acquisition (its blob may be partly hidden by a lip
-    /// or smeared by motion). Default 0.5 to 1.8.
+    /// marker labeled in the last frame (its blob may be partly hidden by a lip or
+    /// smeared by motion). Default 0.5 to 1.8.
     pub dot_size_ratio: (f64, f64),
     /// The range of [`LabelParams::dot_size_ratio`] for a marker's first sighting (in
-    /// acquisition, or a marker not labeled since): with no track to vouch for it, the
-    /// blob must look like a whole dot. Freckles and pores (too small), a dot merged with
+    /// acquisition, or a marker not labeled in the last frame: one never seen, or coming
+    /// back after a gap): with no track to vouch for it, the blob must look like a whole
+    /// dot. Freckles and pores (too small), a dot merged with
     /// a mole beside it, or a dot smeared off its place (too large) are not taken for a
     /// marker that was never seen. Default 0.7 to 1.35.
     pub first_sighting_size_ratio: (f64, f64),
@@ -453,8 +454,11 @@ struct Prediction {
     /// Image motion since the last frame in each camera, pixels: a dot moving this much
     /// during the exposure is blurred up to this much longer.
     motion_px: [f64; 2],
-    /// The marker was not labeled since the last acquisition (its size is held to
-    /// [`LabelParams::first_sighting_size_ratio`]).
+    /// The marker was not labeled in the last frame (its size is held to
+    /// [`LabelParams::first_sighting_size_ratio`]): a track that broke off does not
+    /// vouch for a partial blob where the marker is predicted now, since that prediction
+    /// rests on its neighbours and may be far from the dot (a lip that moved during the
+    /// gap).
     first_sighting: bool,
 }
 

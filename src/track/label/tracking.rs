@@ -127,7 +127,7 @@ impl Labeler {
                     gate_px,
                     gate_mm,
                     motion_px,
-                    first_sighting: t.frames_since_seen.is_none(),
+                    first_sighting: t.frames_since_seen != Some(0),
                 }
             })
             .collect()
