@@ -56,13 +56,8 @@ fn synth(dir: &Path, frames: usize) -> PathBuf {
         .expression_names()
         .to_vec();
     let n = names.len();
-    let mut state = 7u64;
-    let mut rand = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = helmcap::numeric::SplitMix64::new(7);
+    let mut rand = || rng.next_f64();
     // Keyframes every 4 frames, linear in between.
     let keys: Vec<Vec<f64>> = (0..frames / 4 + 2)
         .map(|_| {
@@ -315,13 +310,8 @@ fn ict_rig_recovers_held_out_combinations() {
     .unwrap();
     let mut solver = RigSolver::new(&ds, &RigSolveParams::default()).unwrap();
     let n = ds.shapes.len();
-    let mut state = 12345u64;
-    let mut rand = || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = helmcap::numeric::SplitMix64::new(12345);
+    let mut rand = || rng.next_f64();
     let (mut sq, mut count) = (0.0, 0);
     for _ in 0..6 {
         // A combination of 6 random shapes at random weights.

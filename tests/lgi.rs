@@ -246,13 +246,8 @@ fn missing_marker_weights_reused_across_frames_match_a_fresh_solve() {
     let index = warm.index().clone();
     let names = a.expression_names();
     let eyelid: Vec<usize> = (0..layout.len()).filter(|m| m % 17 == 3).take(4).collect();
-    let mut seed = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move |below: usize| {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed % below as u64) as usize
-    };
+    let mut rng = helmcap::numeric::SplitMix64::new(0x2545_f491_4f6c_dd1d);
+    let mut next = move |below: usize| ((rng.next_f64() * below as f64) as usize).min(below - 1);
     for frame in 0..24u64 {
         let mut w = vec![0.0; names.len()];
         w[(frame as usize) % names.len()] = 0.6;

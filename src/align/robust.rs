@@ -263,23 +263,23 @@ pub fn robust_horn(
 mod tests {
     use super::*;
 
-    /// Deterministic pseudo-random numbers in [-1, 1).
-    struct Lcg(u64);
-    impl Lcg {
+    use crate::numeric::{SplitMix64, standard_normal};
+
+    /// Deterministic pseudo-random numbers: uniform in [-1, 1) and standard normal.
+    struct Rng(SplitMix64);
+    impl Rng {
+        fn new(seed: u64) -> Self {
+            Self(SplitMix64::new(seed))
+        }
         fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+            self.0.uniform(-1.0, 1.0)
         }
         fn gauss(&mut self) -> f64 {
-            // Sum of uniforms: close enough to Gaussian for test noise (σ = 1).
-            (0..12).map(|_| self.next() * 0.5 + 0.5).sum::<f64>() - 6.0
+            standard_normal(&mut self.0)
         }
     }
 
-    fn cloud(n: usize, rng: &mut Lcg) -> Vec<Point3<f64>> {
+    fn cloud(n: usize, rng: &mut Rng) -> Vec<Point3<f64>> {
         (0..n)
             .map(|_| Point3::new(rng.next() * 60.0, rng.next() * 70.0, rng.next() * 30.0))
             .collect()
@@ -294,7 +294,7 @@ mod tests {
 
     #[test]
     fn exact_data_recovered_to_1e9() {
-        let mut rng = Lcg(1);
+        let mut rng = Rng::new(1);
         let p = cloud(30, &mut rng);
         let t = truth();
         let q: Vec<_> = p.iter().map(|x| t * x).collect();
@@ -317,7 +317,7 @@ mod tests {
     fn weights_decide_between_two_motions() {
         // Half the points follow `truth`, half another motion; with weight 0 on the second
         // half the first motion is recovered exactly, and with tiny weights nearly so.
-        let mut rng = Lcg(2);
+        let mut rng = Rng::new(2);
         let p = cloud(20, &mut rng);
         let t = truth();
         let other = Isometry3::new(Vector3::new(5.0, 5.0, 200.0), Vector3::new(0.0, 0.4, 0.0));
@@ -342,7 +342,7 @@ mod tests {
 
     #[test]
     fn scale_is_estimated_only_on_request() {
-        let mut rng = Lcg(3);
+        let mut rng = Rng::new(3);
         let p = cloud(15, &mut rng);
         let t = truth();
         let q: Vec<_> = p
@@ -364,7 +364,7 @@ mod tests {
 
     #[test]
     fn twenty_percent_outliers_stay_within_the_noise() {
-        let mut rng = Lcg(4);
+        let mut rng = Rng::new(4);
         let n = 50;
         let p = cloud(n, &mut rng);
         let t = truth();

@@ -236,13 +236,8 @@ fn bench_rig(dataset: &str, count: usize, runs: usize) -> anyhow::Result<()> {
             )
         })
         .collect();
-    let mut seed = 17u64;
-    let mut next = || {
-        seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = helmcap::numeric::SplitMix64::new(17);
+    let mut next = || rng.next_f64();
     let examples: Vec<Example> = (0..count)
         .map(|j| {
             let mut w = vec![0.0; n];

@@ -219,13 +219,8 @@ mod tests {
     #[test]
     fn newton_and_svd_polar_factors_agree() {
         // Rotations times stretches from mild to strongly anisotropic (condition 1e3).
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::numeric::SplitMix64::new(11);
+        let mut next = || rng.uniform(-1.0, 1.0);
         let mut newton_used = 0;
         for k in 0..200 {
             let r = Rotation3::new(Vector3::new(next(), next(), next()) * 2.0);

@@ -236,13 +236,8 @@ mod tests {
     #[test]
     fn box_qp_matches_brute_force_on_small_problems() {
         // Random SPD problems in 3 variables; compare against a fine grid search.
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rng = crate::numeric::SplitMix64::new(7);
+        let mut rnd = || rng.uniform(-1.0, 1.0);
         for _ in 0..20 {
             let a = DMatrix::from_fn(5, 3, |_, _| rnd());
             let h = a.transpose() * &a + DMatrix::identity(3, 3) * 0.01;

@@ -421,13 +421,8 @@ mod tests {
     /// A bumpy height field over [0, size]², sampled on an `n × n` grid, as triangles;
     /// `jitter` shifts the interior samples in the plane (a different remeshing).
     fn surface(n: usize, size: f64, jitter: f64, seed: u64) -> Mesh {
-        let mut s = seed;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rng = crate::numeric::SplitMix64::new(seed);
+        let mut rnd = || rng.uniform(-1.0, 1.0);
         let h = |x: f64, y: f64| 8.0 * (x * 0.08).sin() * (y * 0.06).cos() + 0.002 * x * y;
         let step = size / n as f64;
         let mut positions = Vec::new();
@@ -479,13 +474,8 @@ mod tests {
         }
         let motion = Translation3::new(40.0, -15.0, 20.0)
             * Rotation3::from_axis_angle(&Vector3::y_axis(), 25f64.to_radians());
-        let mut s = 9u64;
-        let mut noise = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 0.2 - 0.1
-        };
+        let mut rng = crate::numeric::SplitMix64::new(9);
+        let mut noise = || rng.uniform(-0.1, 0.1);
         let positions: Vec<Point3<f64>> = perm
             .iter()
             .map(|&old| motion * resampled.positions[old] + Vector3::new(noise(), noise(), noise()))

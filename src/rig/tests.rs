@@ -225,12 +225,9 @@ fn examples_bring_the_blendshapes_toward_the_actors() {
     assert!(curve[4].1 < 0.7 * dt_error, "{curve:?} vs {dt_error}");
 }
 
-/// Uniform numbers in [−1, 1] from a fixed seed (a 64-bit LCG).
-fn uniform(seed: &mut u64) -> f64 {
-    *seed = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    ((*seed >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+/// Uniform numbers in [−1, 1).
+fn uniform(rng: &mut crate::numeric::SplitMix64) -> f64 {
+    rng.uniform(-1.0, 1.0)
 }
 
 #[test]
@@ -248,7 +245,7 @@ fn perturbed_initial_weights_change_the_rig_little() {
         .map(|d| d.norm_squared())
         .sum::<f64>()
         .sqrt();
-    let mut seed = 5u64;
+    let mut rng = crate::numeric::SplitMix64::new(5);
     for x in [0.1, 0.3, 0.6] {
         let noisy: Vec<Example> = ex
             .iter()
@@ -256,7 +253,7 @@ fn perturbed_initial_weights_change_the_rig_little() {
                 initial_weights: e
                     .initial_weights
                     .iter()
-                    .map(|w| (w + x * uniform(&mut seed)).clamp(0.0, 1.0))
+                    .map(|w| (w + x * uniform(&mut rng)).clamp(0.0, 1.0))
                     .collect(),
                 ..e.clone()
             })

@@ -193,13 +193,8 @@ mod tests {
 
     #[test]
     fn optimal_on_random_matrices() {
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 33) as f64 / (1u64 << 31) as f64
-        };
+        let mut rng = crate::numeric::SplitMix64::new(12345);
+        let mut rnd = || rng.next_f64();
         for n in 1..=6 {
             for _ in 0..20 {
                 let cost: Vec<f64> = (0..n * n).map(|_| rnd()).collect();

@@ -175,13 +175,8 @@ mod tests {
         let rig = crate::camera::default_helmet_rig().unwrap();
         // Jittered points on a curved surface 230-280 mm away.
         let mut pts = Vec::new();
-        let mut s = 99u64;
-        let mut jitter = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 33) as f64 / (1u64 << 31) as f64 * 8.0 - 4.0
-        };
+        let mut rng = crate::numeric::SplitMix64::new(99);
+        let mut jitter = || rng.uniform(-4.0, 4.0);
         for a in -4..=4 {
             for b in -4..=4 {
                 let (x, y) = (
