@@ -275,9 +275,15 @@ pub struct MarkerDetector {
     col: Vec<u16>,
     /// Prefix sums of `col` along the row.
     prefix: Vec<u32>,
-    /// Flood-fill stack.
-    stack: Vec<(usize, u8)>,
-    /// Pixels `(x, y, contrast)` of the current component.
+    /// Runs of candidates along the rows of `mask`, in raster order.
+    runs: Vec<Run>,
+    /// Union-find parent of each run (a root is the component's first run).
+    parent: Vec<u32>,
+    /// Component of each run, numbered in raster order.
+    component_of_run: Vec<u32>,
+    /// Pixels per component.
+    sizes: Vec<usize>,
+    /// Pixels `(x, y, contrast)` of the components measured, contiguous per component.
     pixels: Vec<(usize, usize, u8)>,
 }
 
@@ -441,76 +447,131 @@ impl MarkerDetector {
 
     /// Connected components (8-connectivity) of the candidate mask over the ROI, each
     /// measured or split by [`split_and_measure`]; components of fewer than `min_px`
-    /// pixels are left out.
+    /// pixels (or than the smallest blob area) are left out.
+    ///
+    /// The mask is read as runs of candidates along each row, joined to the runs they
+    /// touch in the row above (union-find); a component's pixels are then gathered run by
+    /// run. Components are measured in the raster order of their first pixel.
     fn components(
         &mut self,
         image: &GrayImage,
         params: &DetectParams,
-        (x0, y0, x1, y1): (usize, usize, usize, usize),
+        (x0, y0, x1, _): (usize, usize, usize, usize),
         min_px: usize,
         out: &mut Vec<Detection>,
         mut rejected: Option<&mut Vec<Rejection>>,
     ) {
-        let (bw, bh) = (x1 - x0, y1 - y0);
+        let bw = x1 - x0;
         let c = params.min_contrast_dn;
         let Self {
             mask,
             row_has_candidate,
-            stack,
+            runs,
+            parent,
+            component_of_run,
+            sizes,
             pixels,
             ..
         } = self;
+        runs.clear();
+        parent.clear();
+        // Runs of each row, joined to the touching runs of the row above.
+        let mut above = 0..0;
+        let mut last_row = usize::MAX;
         for (row, _) in row_has_candidate
             .iter()
             .enumerate()
             .filter(|(_, has)| **has)
         {
-            let (row_start, row_end) = (row * bw, (row + 1) * bw);
-            let mut chunk = row_start;
-            while chunk < row_end {
-                let chunk_end = (chunk + 8).min(row_end);
-                if all_zero(&mask[chunk..chunk_end]) {
-                    chunk = chunk_end;
-                    continue;
-                }
-                for start in chunk..chunk_end {
-                    if mask[start] == 0 {
-                        continue;
-                    }
-                    let level = mask[start];
-                    mask[start] = 0;
-                    stack.push((start, level));
-                    pixels.clear();
-                    while let Some((i, lv)) = stack.pop() {
-                        let (x, y) = (i % bw, i / bw);
-                        if pixels.len() < MAX_COMPONENT_PX {
-                            pixels.push((x + x0, y + y0, lv));
-                        }
-                        let (nx0, nx1) = (x.saturating_sub(1), (x + 1).min(bw - 1));
-                        let (ny0, ny1) = (y.saturating_sub(1), (y + 1).min(bh - 1));
-                        for ny in ny0..=ny1 {
-                            for nx in nx0..=nx1 {
-                                let j = ny * bw + nx;
-                                if mask[j] != 0 {
-                                    stack.push((j, mask[j]));
-                                    mask[j] = 0;
-                                }
-                            }
+            let first = runs.len();
+            let line = &mask[row * bw..(row + 1) * bw];
+            let mut x = 0;
+            while let Some(start) = next_candidate(line, x) {
+                x = end_of_run(line, start);
+                runs.push(Run {
+                    row: row as u32,
+                    start: start as u32,
+                    end: x as u32,
+                });
+                parent.push((runs.len() - 1) as u32);
+            }
+            let here = first..runs.len();
+            if last_row.wrapping_add(1) == row {
+                // Two-pointer sweep: runs touch (8-connectivity) when their column ranges
+                // overlap after growing one of them by a pixel either way.
+                let (mut i, mut j) = (here.start, above.start);
+                while i < here.end && j < above.end {
+                    let (a, b) = (runs[i], runs[j]);
+                    if b.end < a.start {
+                        j += 1;
+                    } else if a.end < b.start {
+                        i += 1;
+                    } else {
+                        union(parent, i as u32, j as u32);
+                        if a.end < b.end {
+                            i += 1;
+                        } else {
+                            j += 1;
                         }
                     }
-                    if pixels.len() >= min_px {
-                        split_and_measure(
-                            image,
-                            pixels,
-                            c,
-                            0,
-                            params,
-                            out,
-                            rejected.as_deref_mut(),
-                        );
-                    }
                 }
-                chunk = chunk_end;
+            }
+            above = here;
+            last_row = row;
+        }
+        // Component of every run, numbered in raster order of their first run, and sizes.
+        component_of_run.clear();
+        sizes.clear();
+        for (i, run) in runs.iter().enumerate() {
+            let root = find(parent, i as u32) as usize;
+            let id = if root == i {
+                sizes.push(0);
+                (sizes.len() - 1) as u32
+            } else {
+                component_of_run[root]
+            };
+            component_of_run.push(id);
+            sizes[id as usize] += (run.end - run.start) as usize;
+        }
+        // Pixels of the components kept, contiguous per component.
+        let floor = min_px.max(params.min_area_px).max(1);
+        let mut offsets: Vec<usize> = Vec::with_capacity(sizes.len() + 1);
+        let mut total = 0;
+        for &n in sizes.iter() {
+            offsets.push(total);
+            if n >= floor {
+                total += n.min(MAX_COMPONENT_PX);
+            }
+        }
+        offsets.push(total);
+        pixels.clear();
+        pixels.resize(total, (0, 0, 0));
+        let mut fill = offsets.clone();
+        for (run, &id) in runs.iter().zip(component_of_run.iter()) {
+            let id = id as usize;
+            if sizes[id] < floor {
+                continue;
+            }
+            let y = run.row as usize;
+            let (start, end) = (run.start as usize, run.end as usize);
+            let room = offsets[id + 1] - fill[id];
+            let levels = &mask[y * bw + start..y * bw + end];
+            for (x, &level) in (start..end).zip(levels).take(room) {
+                pixels[fill[id]] = (x + x0, y + y0, level);
+                fill[id] += 1;
+            }
+        }
+        for id in 0..sizes.len() {
+            if sizes[id] >= floor {
+                split_and_measure(
+                    image,
+                    &pixels[offsets[id]..offsets[id + 1]],
+                    c,
+                    0,
+                    params,
+                    out,
+                    rejected.as_deref_mut(),
+                );
             }
         }
     }
@@ -658,6 +719,69 @@ impl MarkerDetector {
             self.row_has_candidate[y - y0] = any != 0;
         }
     }
+}
+
+/// A run of candidate pixels along a row of the mask: columns `start..end`.
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    row: u32,
+    start: u32,
+    end: u32,
+}
+
+/// The root of run `i`'s set, halving the path on the way.
+fn find(parent: &mut [u32], mut i: u32) -> u32 {
+    while parent[i as usize] != i {
+        let grand = parent[parent[i as usize] as usize];
+        parent[i as usize] = grand;
+        i = grand;
+    }
+    i
+}
+
+/// Joins the sets of runs `a` and `b`; the root is the earlier run, so that a set's root is
+/// its first run in raster order.
+fn union(parent: &mut [u32], a: u32, b: u32) {
+    let (ra, rb) = (find(parent, a), find(parent, b));
+    if ra != rb {
+        let (lo, hi) = (ra.min(rb), ra.max(rb));
+        parent[hi as usize] = lo;
+    }
+}
+
+/// The eight bytes of `line` from `x` as one word, first byte lowest (None past the end).
+fn word_at(line: &[u8], x: usize) -> Option<u64> {
+    let bytes: [u8; 8] = line.get(x..x + 8)?.try_into().ok()?;
+    Some(u64::from_le_bytes(bytes))
+}
+
+/// The first non-zero byte of `line` at or after `x`, skipping zeros a word at a time.
+fn next_candidate(line: &[u8], mut x: usize) -> Option<usize> {
+    while let Some(word) = word_at(line, x) {
+        if word != 0 {
+            return Some(x + (word.trailing_zeros() / 8) as usize);
+        }
+        x += 8;
+    }
+    (x..line.len()).find(|&i| line[i] != 0)
+}
+
+/// The end (exclusive) of the run of non-zero bytes of `line` that starts at `x`, found a
+/// word at a time: the lowest byte flagged by `(w − 0x01…01) & !w & 0x80…80` is the first
+/// zero byte of `w` (the flags above it may be wrong, the lowest never is).
+fn end_of_run(line: &[u8], mut x: usize) -> usize {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const HIGHS: u64 = 0x8080_8080_8080_8080;
+    while let Some(word) = word_at(line, x) {
+        let zeros = word.wrapping_sub(ONES) & !word & HIGHS;
+        if zeros != 0 {
+            return x + (zeros.trailing_zeros() / 8) as usize;
+        }
+        x += 8;
+    }
+    (x..line.len())
+        .find(|&i| line[i] == 0)
+        .unwrap_or(line.len())
 }
 
 /// Whether every byte of `bytes` is zero, tested as one word (false for more than 8 bytes).
@@ -888,19 +1012,30 @@ fn measure_blob(
     let g = 3;
     let (rx0, ry0) = (bx0.saturating_sub(g), by0.saturating_sub(g));
     let (rx1, ry1) = ((bx1 + g).min(w - 1), (by1 + g).min(h - 1));
-    let mut ring: Vec<u8> = Vec::new();
+    // Its median, from a histogram of its levels.
+    let mut histogram = [0u32; 256];
     for y in ry0..=ry1 {
-        for x in rx0..=rx1 {
-            if y == ry0 || y == ry1 || x == rx0 || x == rx1 {
-                ring.push(image.data[y * w + x]);
+        let row = &image.data[y * w..(y + 1) * w];
+        if y == ry0 || y == ry1 {
+            row[rx0..=rx1]
+                .iter()
+                .for_each(|&v| histogram[usize::from(v)] += 1);
+        } else {
+            histogram[usize::from(row[rx0])] += 1;
+            if rx1 != rx0 {
+                histogram[usize::from(row[rx1])] += 1;
             }
         }
     }
-    if ring.is_empty() {
+    let count: u32 = histogram.iter().sum();
+    let mut below = 0;
+    let Some(median) = histogram.iter().position(|&n| {
+        below += n;
+        below > count / 2
+    }) else {
         return Err(RejectReason::LowContrast);
-    }
-    let mid = ring.len() / 2;
-    let background = f64::from(*ring.select_nth_unstable(mid).1);
+    };
+    let background = median as f64;
     let sign = if params.bright { -1.0 } else { 1.0 };
     let peak = pixels
         .iter()
@@ -925,12 +1060,11 @@ fn measure_blob(
     let floor = 0.1 * peak;
     for y in cy0..=cy1 {
         for x in cx0..=cx1 {
-            let wgt = sign * (plane(x, y) - f64::from(image.data[y * w + x])) - floor;
-            if wgt > 0.0 {
-                sw += wgt;
-                swx += wgt * x as f64;
-                swy += wgt * y as f64;
-            }
+            // Branch-free: a weight of zero adds nothing.
+            let wgt = (sign * (plane(x, y) - f64::from(image.data[y * w + x])) - floor).max(0.0);
+            sw += wgt;
+            swx += wgt * x as f64;
+            swy += wgt * y as f64;
         }
     }
     if sw <= 0.0 {
@@ -1231,6 +1365,38 @@ mod tests {
             ..Default::default()
         };
         assert!(detect_markers(&img, &params).is_empty());
+    }
+
+    #[test]
+    fn runs_are_found_a_word_at_a_time_as_byte_by_byte() {
+        use rand::Rng;
+        let mut rng = crate::numeric::SplitMix64::new(7);
+        for len in [0usize, 1, 7, 8, 9, 23, 64, 101] {
+            for density in [0.05, 0.5, 0.95] {
+                let line: Vec<u8> = (0..len)
+                    .map(|_| u8::from(rng.random::<f64>() < density) * rng.random_range(1..=255))
+                    .collect();
+                let (mut fast, mut slow) = (Vec::new(), Vec::new());
+                let mut x = 0;
+                while let Some(start) = next_candidate(&line, x) {
+                    x = end_of_run(&line, start);
+                    fast.push((start, x));
+                }
+                let mut x = 0;
+                while x < len {
+                    if line[x] == 0 {
+                        x += 1;
+                        continue;
+                    }
+                    let start = x;
+                    while x < len && line[x] != 0 {
+                        x += 1;
+                    }
+                    slow.push((start, x));
+                }
+                assert_eq!(fast, slow, "{line:?}");
+            }
+        }
     }
 
     /// The local contrast of every pixel by direct summation over its clamped window.
