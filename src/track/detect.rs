@@ -1473,6 +1473,40 @@ mod tests {
                 assert_eq!(detector.row_has_candidate, rows_with);
             }
         }
+        // In search windows (near ones, whose grown spans share prefix sums, and far
+        // ones): the direct contrast inside them, nothing outside.
+        let rects = [
+            (10, 10, 30, 30),
+            (35, 12, 50, 40),
+            (52, 20, 60, 26),
+            (120, 50, 140, 70),
+            (20, 80, 190, 90),
+        ];
+        let roi = (0, 0, 200, 120);
+        let windows = SearchWindows::new(&rects, roi);
+        for bright in [false, true] {
+            for r in [3, 8, 30] {
+                let params = DetectParams {
+                    bright,
+                    window_radius_px: r,
+                    min_contrast_dn: 4,
+                    ..Default::default()
+                };
+                detector.threshold(&img, &params, r as usize, roi, Some(&windows));
+                let mut expected = naive_mask(&img, &params, roi);
+                for (i, m) in expected.iter_mut().enumerate() {
+                    let (x, y) = ((i % 200) as u32, (i / 200) as u32);
+                    if !rects
+                        .iter()
+                        .any(|&(a, b, c, d)| (a..c).contains(&x) && (b..d).contains(&y))
+                    {
+                        *m = 0;
+                    }
+                }
+                assert!(expected.iter().any(|&m| m != 0));
+                assert_eq!(detector.mask, expected, "windows, bright {bright}, r {r}");
+            }
+        }
         // A reused detector gives what a fresh one gives.
         let params = DetectParams::default();
         let fresh = detect_markers(&img, &params);
