@@ -42,8 +42,8 @@ pub struct DetectArgs {
     /// Output folder: `detect_cam0.png` (and `detect_cam1.png`), `detections.csv`.
     #[arg(long, short, default_value = "out/detect")]
     pub out: PathBuf,
-    /// Print the capture profile in use (`--profile`, else the defaults) as TOML, every
-    /// setting with its value, and stop.
+    /// Print the capture profile in use (`--profile`, else the session's, else the
+    /// defaults) as TOML, every setting with its value, and stop.
     #[arg(long)]
     pub print_profile: bool,
 }
@@ -57,7 +57,16 @@ struct CameraResult {
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     if args.print_profile {
-        let profile = match &args.profile {
+        // The profile in use: `--profile`, else the one the session names.
+        let session_profile = match (&args.profile, &args.input) {
+            (None, Some(dir)) if dir.is_dir() => Replay::open(dir, ReplayParams::default())
+                .with_context(|| format!("opening session {}", dir.display()))?
+                .info()
+                .profile
+                .clone(),
+            _ => None,
+        };
+        let profile = match args.profile.as_ref().or(session_profile.as_ref()) {
             Some(p) => CaptureProfile::load(p)?,
             None => CaptureProfile::default(),
         };
@@ -100,9 +109,15 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 &DatasetSpec::new(args.dataset.clone()),
                 args.markers.as_deref(),
             )?;
-            let (layout, neutral) = (take.layout, take.neutral_markers);
-            names = layout.markers.iter().map(|m| m.name.clone()).collect();
-            let mut labeler = Labeler::new(rig.clone(), &layout, neutral, profile.label_params())?;
+            names = take.layout.markers.iter().map(|m| m.name.clone()).collect();
+            let mut labeler = Labeler::new(
+                rig.clone(),
+                &take.layout,
+                take.neutral_markers.clone(),
+                profile.label_params(),
+            )?;
+            // As `replay` and `live` do: the face may be in any of the actor's expressions.
+            labeler.set_expression_templates(take.layout.expression_templates(&take.dataset));
             Some(labeler.process(FrameIndex::new(0), [&results[0].dots, &results[1].dots]))
         }
         _ => None,
