@@ -97,7 +97,19 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| actor.neutral().positions[m.vertex as usize])
         .collect();
-    let new_labeler = || Labeler::new(rig.clone(), &layout, neutral.clone(), label_params.clone());
+    // The skin's normal at each marker, as `replay` gives the labeler.
+    let vertex_normals = helmcap::mesh::vertex_normals(actor.neutral());
+    let normals: Vec<Vector3<f64>> = layout
+        .markers
+        .iter()
+        .map(|m| vertex_normals[m.vertex as usize])
+        .collect();
+    let new_labeler = || {
+        Labeler::new(rig.clone(), &layout, neutral.clone(), label_params.clone()).map(|mut l| {
+            l.set_marker_normals(normals.clone());
+            l
+        })
+    };
 
     // Throughput: detection in predicted ROIs (both cameras in parallel) + labeling and
     // triangulation.

@@ -211,6 +211,23 @@ impl MarkerLayout {
         })
     }
 
+    /// The unit normal of `dataset`'s neutral face at each marker (head frame, layout
+    /// order), from the mesh's vertex normals: how round each painted dot can look from a
+    /// camera ([`crate::track::Labeler::set_marker_normals`]). A marker on a vertex
+    /// without a normal gets the zero vector (then the labeler takes none).
+    pub fn neutral_normals(&self, dataset: &Dataset) -> Vec<Vector3<f64>> {
+        let normals = vertex_normals(&dataset.neutral);
+        self.markers
+            .iter()
+            .map(|m| {
+                normals
+                    .get(m.vertex as usize)
+                    .copied()
+                    .unwrap_or_else(Vector3::zeros)
+            })
+            .collect()
+    }
+
     /// The markers' positions (head frame, layout order) on each of `dataset`'s shapes,
     /// and half-way between the neutral and each shape: the expressions marker labeling
     /// may find the face in when it starts from nothing

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 use super::truth::GroundTruth;
 use crate::align::StabilizeParams;
@@ -80,6 +80,11 @@ pub struct TrackConfig {
     /// positions (head frame, layout order) per expression, e.g. from
     /// [`MarkerLayout::expression_templates`]. Default none (the neutral only).
     pub expression_templates: Arc<Vec<Vec<Point3<f64>>>>,
+    /// The skin's normal at each marker on the neutral face (head frame, layout order),
+    /// e.g. from [`MarkerLayout::neutral_normals`]: labeling then refuses blobs much
+    /// thinner than a marker's dot can look ([`LabelParams::min_roundness_ratio`]).
+    /// Default none (no roundness check).
+    pub marker_normals: Arc<Vec<Vector3<f64>>>,
     /// Frames on which labeling starts again from nothing (a fresh labeler, as at the
     /// start of the take); None: never. Default None.
     ///

@@ -136,6 +136,7 @@ pub fn run(
                 detect,
                 label,
                 expression_templates,
+                marker_normals,
                 label_restarts,
             },
         stabilize,
@@ -190,6 +191,9 @@ pub fn run(
     }
     let mut labeler = Labeler::new(rig.clone(), &layout, neutral_markers_head.to_vec(), label)
         .map_err(|e| config_err(e.to_string()))?;
+    if !marker_normals.is_empty() && !labeler.set_marker_normals(marker_normals.to_vec()) {
+        tracing::warn!("the marker normals do not fit the layout: no roundness check");
+    }
     let left_out = labeler.set_expression_templates(expression_templates.to_vec());
     if left_out > 0 {
         tracing::warn!("{left_out} expression templates do not fit the layout: left out");

@@ -245,6 +245,7 @@ impl TakeDataset {
         );
         config.track.expression_templates =
             Arc::new(self.layout.expression_templates(&self.dataset));
+        config.track.marker_normals = Arc::new(self.layout.neutral_normals(&self.dataset));
         config
     }
 }

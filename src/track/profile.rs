@@ -322,6 +322,14 @@ mod tests {
             ("camera_distance_mm = [300, 100]", "camera_distance_mm"),
             ("[detect]\nmin_area_px = 0", "detect.min_area_px"),
             ("[label]\ngate_px = -1.0", "label.gate_px"),
+            (
+                "[label]\nnormal_slack_deg = 120.0",
+                "label.normal_slack_deg",
+            ),
+            (
+                "[label]\nmin_roundness_ratio = 1.5",
+                "label.min_roundness_ratio",
+            ),
             ("color = [0, 300, 0]", "color"),
         ] {
             let e = parse(text).unwrap_err().to_string();

@@ -173,6 +173,20 @@ pub struct LabelParams {
     /// a mole beside it, or a dot smeared off its place (too large) are not taken for a
     /// marker that was never seen. Default 0.7 to 1.35.
     pub first_sighting_size_ratio: (f64, f64),
+    /// With the skin's normal at each marker ([`Labeler::set_marker_normals`]): a blob is
+    /// a marker's only when its roundness is at least this share of the roundness its
+    /// dot has from the camera, `cos(θ + slack)`, θ the angle between the camera's line
+    /// of sight and the neutral face's normal at the marker, `slack`
+    /// [`LabelParams::normal_slack_deg`] (0: no check). A sliver of a dot mostly hidden by
+    /// a lip, or a piece of a smeared dot, is much thinner than the dot where the skin
+    /// faces the camera, and its centre is off the dot's by up to half a diameter.
+    /// Default 0.6.
+    pub min_roundness_ratio: f64,
+    /// How far the skin at a marker may turn from the neutral face's normal (expressions
+    /// roll the lips and stretch the cheeks), degrees: the roundness check of
+    /// [`LabelParams::min_roundness_ratio`] assumes the dot turned that much further
+    /// from the camera. Default 25.
+    pub normal_slack_deg: f64,
     /// Acquisition: at most this many detections per image take part, the best by
     /// quality (bounds the time of an attempt on skin with hundreds of blobs). Default
     /// 400.
@@ -221,6 +235,8 @@ impl Default for LabelParams {
             dot_diameter_mm: 2.4,
             dot_size_ratio: (0.5, 1.8),
             first_sighting_size_ratio: (0.7, 1.35),
+            min_roundness_ratio: 0.6,
+            normal_slack_deg: 25.0,
             acquire_max_detections: 400,
             acquire_iterations_per_frame: 150,
             acquire_hypotheses_per_frame: 12_000,
@@ -320,6 +336,12 @@ impl LabelParams {
             if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
                 return Err(err(name, "must be 0 <= low < high"));
             }
+        }
+        if !(0.0..=1.0).contains(&self.min_roundness_ratio) {
+            return Err(err("min_roundness_ratio", "must be in [0, 1]"));
+        }
+        if !(0.0..=90.0).contains(&self.normal_slack_deg) {
+            return Err(err("normal_slack_deg", "must be in [0, 90] degrees"));
         }
         if self.acquire_max_detections < self.acquire_min_markers {
             return Err(err(
@@ -435,13 +457,17 @@ pub struct Labeler {
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
-    /// The current frame's detections: measured diameter and quality, per camera.
-    blobs: [Vec<(f64, f64)>; 2],
+    /// The current frame's detections: measured diameter, quality and roundness, per
+    /// camera.
+    blobs: [Vec<(f64, f64, f64)>; 2],
     /// An acquisition under way over several frames.
     acquisition: acquisition::Search,
     /// Marker positions (head frame, layout order) of expressions acquisition tries
     /// besides the neutral ([`Labeler::set_expression_templates`]).
     templates: Vec<Vec<Point3<f64>>>,
+    /// Unit normals of the neutral face at the markers (head frame, layout order; empty:
+    /// none, [`Labeler::set_marker_normals`]).
+    normals: Vec<Vector3<f64>>,
 }
 
 /// A marker's prediction for one labeling pass.
@@ -460,6 +486,8 @@ struct Prediction {
     /// rests on its neighbours and may be far from the dot (a lip that moved during the
     /// gap).
     first_sighting: bool,
+    /// The skin's normal at the marker (cam0 frame), when known.
+    normal: Option<Vector3<f64>>,
 }
 
 /// A labeled marker before it becomes output.
@@ -582,6 +610,7 @@ impl Labeler {
             acquisition: acquisition::Search::default(),
             params,
             templates: Vec::new(),
+            normals: Vec::new(),
         })
     }
 
@@ -617,6 +646,20 @@ impl Labeler {
             .filter(|t| t.len() == m && t.iter().all(|p| p.coords.iter().all(|v| v.is_finite())))
             .collect();
         before - self.templates.len()
+    }
+
+    /// The skin's normal at each marker on the neutral face (head frame, layout order;
+    /// [`MarkerLayout::neutral_normals`]): with it, a blob much thinner than the marker's
+    /// dot can look from the camera is not the marker's (see
+    /// [`LabelParams::min_roundness_ratio`]). Returns false, and keeps none, when the count
+    /// is not the layout's or a normal is not finite and of unit length.
+    pub fn set_marker_normals(&mut self, normals: Vec<Vector3<f64>>) -> bool {
+        let fits = normals.len() == self.neutral.len()
+            && normals
+                .iter()
+                .all(|n| n.iter().all(|v| v.is_finite()) && (n.norm() - 1.0).abs() < 1e-6);
+        self.normals = if fits { normals } else { Vec::new() };
+        fits
     }
 
     /// Forget all tracks (next frame re-acquires by registration).
@@ -667,7 +710,7 @@ impl Labeler {
         self.blobs = [0, 1].map(|c| {
             detections[c]
                 .iter()
-                .map(|d| (d.diameter_px, d.quality))
+                .map(|d| (d.diameter_px, d.quality, d.roundness))
                 .collect()
         });
         // Detections with non-finite centres are never used.

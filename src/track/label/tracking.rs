@@ -39,7 +39,7 @@ impl Labeler {
         ];
         (0..2).all(|c| {
             // A detector that does not measure sizes gives NaN: no size check.
-            let Some(&(measured, _)) = self.blobs[c].get(det[c]) else {
+            let Some(&(measured, _, _)) = self.blobs[c].get(det[c]) else {
                 return true;
             };
             if !measured.is_finite() {
@@ -52,6 +52,46 @@ impl Labeler {
             let (s1, s2) = singular_values(&j);
             let d = self.params.dot_diameter_mm;
             measured >= lo * d * s2 - 2.0 && measured <= hi * d * s1 + 2.0 + motion_px[c]
+        })
+    }
+
+    /// Whether detections `det` (cam0, cam1) are as round as a dot at `point` with the
+    /// skin's normal `normal` (both cam0 frame) can look from each camera: at least
+    /// [`super::LabelParams::min_roundness_ratio`] of `cos(θ + slack)`, θ the angle between
+    /// the line of sight and the normal (a disc seen at θ has minor/major axes `cos θ`; the
+    /// detector's blobs are, if anything, rounder, since blur widens thin ones). True
+    /// without a normal.
+    pub(super) fn round_enough(
+        &self,
+        point: &Point3<f64>,
+        normal: Option<&Vector3<f64>>,
+        det: [usize; 2],
+    ) -> bool {
+        let p = &self.params;
+        let Some(normal) = normal else {
+            return true;
+        };
+        if p.min_roundness_ratio <= 0.0 {
+            return true;
+        }
+        let views = [
+            (point.coords, *normal),
+            (
+                (self.rig.cam1_from_cam0 * point).coords,
+                self.rig.cam1_from_cam0.rotation * normal,
+            ),
+        ];
+        (0..2).all(|c| {
+            let Some(&(_, _, roundness)) = self.blobs[c].get(det[c]) else {
+                return true;
+            };
+            let (sight, n) = &views[c];
+            let cos = (n.dot(sight) / (n.norm() * sight.norm())).abs();
+            if !(roundness.is_finite() && cos.is_finite()) {
+                return true;
+            }
+            let angle = cos.min(1.0).acos() + p.normal_slack_deg.to_radians();
+            roundness >= p.min_roundness_ratio * angle.min(std::f64::consts::FRAC_PI_2).cos()
         })
     }
 
@@ -128,6 +168,7 @@ impl Labeler {
                     gate_mm,
                     motion_px,
                     first_sighting: t.frames_since_seen != Some(0),
+                    normal: self.normals.get(i).map(|n| pose.rotation * n),
                 }
             })
             .collect()
@@ -292,7 +333,8 @@ impl Labeler {
                     } else {
                         p.dot_size_ratio
                     },
-                ))
+                )
+                && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b]))
             .then_some(bundle)
         };
         let mut labels = Vec::new();
