@@ -42,7 +42,7 @@ use nalgebra::{Point2, Point3};
 use spade::{DelaunayTriangulation, HasPosition, Triangulation};
 
 use crate::mesh::Mesh;
-use crate::numeric::NearestPoints;
+use crate::numeric::{NearestPoints, find_root, join_sets};
 
 /// A marker site in the UV-space Delaunay triangulation.
 #[derive(Debug, Clone, Copy)]
@@ -234,20 +234,6 @@ impl NaturalNeighborWeights {
     /// first marker. `supports[m]` lists the vertices with weight on marker `m`
     /// ([`Self::support`]).
     pub fn missing_clusters(&self, present: &[bool], supports: &[&[(u32, f64)]]) -> Vec<Vec<u32>> {
-        fn find(parent: &mut [u32], mut a: u32) -> u32 {
-            while parent[a as usize] != a {
-                let up = parent[parent[a as usize] as usize];
-                parent[a as usize] = up;
-                a = up;
-            }
-            a
-        }
-        fn union(parent: &mut [u32], a: u32, b: u32) {
-            let (ra, rb) = (find(parent, a), find(parent, b));
-            if ra != rb {
-                parent[ra.max(rb) as usize] = ra.min(rb);
-            }
-        }
         let count = present.len();
         let is_missing = |m: u32| !present.get(m as usize).copied().unwrap_or(true);
         let mut parent: Vec<u32> = (0..count as u32).collect();
@@ -256,7 +242,7 @@ impl NaturalNeighborWeights {
         for m in (0..count as u32).filter(|&m| is_missing(m)) {
             for &nb in self.neighbors.get(m as usize).map_or(&[][..], |n| n) {
                 if is_missing(nb) {
-                    union(&mut parent, m, nb);
+                    join_sets(&mut parent, m, nb);
                 }
             }
             // Vertices that copy a source have its weights: the sources decide.
@@ -264,14 +250,14 @@ impl NaturalNeighborWeights {
                 let v = self.source.get(v as usize).copied().unwrap_or(v) as usize;
                 match owner.get(v).copied() {
                     Some(u32::MAX) => owner[v] = m,
-                    Some(other) => union(&mut parent, m, other),
+                    Some(other) => join_sets(&mut parent, m, other),
                     None => {}
                 }
             }
         }
         let mut clusters: std::collections::BTreeMap<u32, Vec<u32>> = Default::default();
         for m in (0..count as u32).filter(|&m| is_missing(m)) {
-            let root = find(&mut parent, m);
+            let root = find_root(&mut parent, m);
             clusters.entry(root).or_default().push(m);
         }
         clusters.into_values().collect()
@@ -497,18 +483,10 @@ fn vertex_coords(mesh: &Mesh) -> (Vec<Point2<f64>>, Vec<u32>) {
     }
     // Union-find over UV indices joined by polygons.
     let mut parent: Vec<u32> = (0..mesh.uvs.len() as u32).collect();
-    fn find(parent: &mut [u32], mut a: u32) -> u32 {
-        while parent[a as usize] != a {
-            let g = parent[parent[a as usize] as usize];
-            parent[a as usize] = g;
-            a = g;
-        }
-        a
-    }
     for f in 0..mesh.face_count() {
         let t = mesh.face_uv(f);
         for w in t.windows(2) {
-            let (a, b) = (find(&mut parent, w[0]), find(&mut parent, w[1]));
+            let (a, b) = (find_root(&mut parent, w[0]), find_root(&mut parent, w[1]));
             if a != b {
                 parent[a as usize] = b;
             }
@@ -518,7 +496,7 @@ fn vertex_coords(mesh: &Mesh) -> (Vec<Point2<f64>>, Vec<u32>) {
     let mut island = vec![u32::MAX; n];
     for (&v, &t) in mesh.face_vertices.iter().zip(&mesh.face_uvs) {
         if island[v as usize] == u32::MAX {
-            island[v as usize] = find(&mut parent, t);
+            island[v as usize] = find_root(&mut parent, t);
             coords[v as usize] = mesh.uvs[t as usize];
         }
     }

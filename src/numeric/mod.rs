@@ -11,15 +11,19 @@
 //!   the benchmarks' noise).
 //! - [`NearestPoints`]: nearest-point queries over a fixed set of 3D points (a `kiddo`
 //!   k-d tree), for acquisition's registration and LGI's vertices off the UV map.
+//! - [`find_root`] and [`join_sets`]: disjoint sets in a parent array (the detector's
+//!   blobs from runs of pixels, LGI's clusters of missing markers).
 
 mod points;
 mod qp;
 mod random;
 mod spd;
 mod stats;
+mod union_find;
 
 pub use points::NearestPoints;
 pub use qp::{box_qp, convex_weights};
 pub use random::{SplitMix64, standard_normal};
 pub use spd::{FactorError, SpdFactor};
 pub use stats::upper_median;
+pub use union_find::{find_root, join_sets};

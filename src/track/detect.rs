@@ -27,6 +27,7 @@ use nalgebra::Point2;
 
 use super::search_windows::{Rect, SearchWindows};
 use crate::capture::GrayImage;
+use crate::numeric::{find_root, join_sets};
 use crate::param_error::{self, ParamError};
 
 /// Detection settings.
@@ -510,7 +511,7 @@ impl MarkerDetector {
                     } else if a.end < b.start {
                         i += 1;
                     } else {
-                        union(parent, i as u32, j as u32);
+                        join_sets(parent, i as u32, j as u32);
                         if a.end < b.end {
                             i += 1;
                         } else {
@@ -526,7 +527,8 @@ impl MarkerDetector {
         component_of_run.clear();
         sizes.clear();
         for (i, run) in runs.iter().enumerate() {
-            let root = find(parent, i as u32) as usize;
+            // The root is the component's first run (the smallest index).
+            let root = find_root(parent, i as u32) as usize;
             let id = if root == i {
                 sizes.push(0);
                 (sizes.len() - 1) as u32
@@ -730,26 +732,6 @@ struct Run {
     row: u32,
     start: u32,
     end: u32,
-}
-
-/// The root of run `i`'s set, halving the path on the way.
-fn find(parent: &mut [u32], mut i: u32) -> u32 {
-    while parent[i as usize] != i {
-        let grand = parent[parent[i as usize] as usize];
-        parent[i as usize] = grand;
-        i = grand;
-    }
-    i
-}
-
-/// Joins the sets of runs `a` and `b`; the root is the earlier run, so that a set's root is
-/// its first run in raster order.
-fn union(parent: &mut [u32], a: u32, b: u32) {
-    let (ra, rb) = (find(parent, a), find(parent, b));
-    if ra != rb {
-        let (lo, hi) = (ra.min(rb), ra.max(rb));
-        parent[hi as usize] = lo;
-    }
 }
 
 /// The eight bytes of `line` from `x` as one word, first byte lowest (None past the end).
@@ -1194,6 +1176,38 @@ mod tests {
         }
     }
 
+    /// The share of pixel `(x, y)` (pixel centres at integers) inside a region, from 8×8
+    /// samples.
+    fn coverage(x: u32, y: u32, inside: impl Fn(f64, f64) -> bool) -> f64 {
+        let mut count = 0;
+        for sy in 0..8 {
+            for sx in 0..8 {
+                let px = f64::from(x) - 0.4375 + 0.125 * f64::from(sx);
+                let py = f64::from(y) - 0.4375 + 0.125 * f64::from(sy);
+                count += u32::from(inside(px, py));
+            }
+        }
+        f64::from(count) / 64.0
+    }
+
+    /// The position of `(px, py)` in the frame of ellipse `(cx, cy, a, b, angle)`: along
+    /// its major axis and across it, pixels.
+    fn ellipse_frame(
+        &(cx, cy, _, _, angle): &(f64, f64, f64, f64, f64),
+        px: f64,
+        py: f64,
+    ) -> (f64, f64) {
+        let (sn, cs) = angle.sin_cos();
+        let (dx, dy) = (px - cx, py - cy);
+        (cs * dx + sn * dy, -sn * dx + cs * dy)
+    }
+
+    /// Whether `(px, py)` lies inside ellipse `e`.
+    fn in_ellipse(e: &(f64, f64, f64, f64, f64), px: f64, py: f64) -> bool {
+        let (u, t) = ellipse_frame(e, px, py);
+        (u / e.2).powi(2) + (t / e.3).powi(2) < 1.0
+    }
+
     /// A gradient-lit image with antialiased dark ellipses `(cx, cy, a, b, angle)`:
     /// semi-axes `a`, `b` (pixels), major axis at `angle` radians from the x axis.
     fn image_with_ellipses(ellipses: &[(f64, f64, f64, f64, f64)]) -> GrayImage {
@@ -1202,19 +1216,8 @@ mod tests {
         for y in 0..h {
             for x in 0..w {
                 let mut v = 90.0 + 100.0 * f64::from(x) / f64::from(w);
-                for &(cx, cy, a, b, angle) in ellipses {
-                    let (sn, cs) = angle.sin_cos();
-                    let mut cov = 0.0;
-                    for sy in 0..8 {
-                        for sx in 0..8 {
-                            let dx = f64::from(x) - 0.4375 + 0.125 * f64::from(sx) - cx;
-                            let dy = f64::from(y) - 0.4375 + 0.125 * f64::from(sy) - cy;
-                            let (u, t) = (cs * dx + sn * dy, -sn * dx + cs * dy);
-                            if (u / a).powi(2) + (t / b).powi(2) < 1.0 {
-                                cov += 1.0 / 64.0;
-                            }
-                        }
-                    }
+                for e in ellipses {
+                    let cov = coverage(x, y, |px, py| in_ellipse(e, px, py));
                     v = v + (15.0 - v) * cov;
                 }
                 data[(y * w + x) as usize] = v.round() as u8;
@@ -1232,20 +1235,12 @@ mod tests {
         // A dot seen ~73° from its normal (semi-axes 6 and 1.8 px) with its thin axis along
         // a steep shading gradient (4 levels per pixel).
         let (w, h) = (80u32, 60u32);
-        let (cx, cy, a, b) = (40.3, 30.6, 6.0, 1.8);
+        let dot = (40.3, 30.6, 6.0, 1.8, 0.0);
+        let (cx, cy) = (dot.0, dot.1);
         let mut data = vec![0u8; (w * h) as usize];
         for y in 0..h {
             for x in 0..w {
-                let mut cov = 0.0;
-                for sy in 0..8 {
-                    for sx in 0..8 {
-                        let dx = f64::from(x) - 0.4375 + 0.125 * f64::from(sx) - cx;
-                        let dy = f64::from(y) - 0.4375 + 0.125 * f64::from(sy) - cy;
-                        if (dx / a).powi(2) + (dy / b).powi(2) < 1.0 {
-                            cov += 1.0 / 64.0;
-                        }
-                    }
-                }
+                let cov = coverage(x, y, |px, py| in_ellipse(&dot, px, py));
                 // Faint ink (60 % of the skin's light), as on a dot that far from the
                 // camera's axis.
                 let skin = 60.0 + 4.0 * f64::from(y);
@@ -1380,25 +1375,13 @@ mod tests {
         // face's silhouette: 4.5 px from its axis, on the upper side, the image is black
         // (the background beyond the face). The black lies inside the blob's box.
         let (w, h) = (60u32, 40u32);
-        let (cx, cy, a, b, angle) = (30.3, 20.4, 7.0, 1.4, 0.53f64);
-        let (sn, cs) = angle.sin_cos();
+        let dot = (30.3, 20.4, 7.0, 1.4, 0.53);
+        let (cx, cy) = (dot.0, dot.1);
         let mut data = vec![0u8; (w * h) as usize];
         for y in 0..h {
             for x in 0..w {
-                let (mut ink, mut beyond) = (0.0, 0.0);
-                for sy in 0..8 {
-                    for sx in 0..8 {
-                        let dx = f64::from(x) - 0.4375 + 0.125 * f64::from(sx) - cx;
-                        let dy = f64::from(y) - 0.4375 + 0.125 * f64::from(sy) - cy;
-                        let (u, t) = (cs * dx + sn * dy, -sn * dx + cs * dy);
-                        if (u / a).powi(2) + (t / b).powi(2) < 1.0 {
-                            ink += 1.0 / 64.0;
-                        }
-                        if t < -4.5 {
-                            beyond += 1.0 / 64.0;
-                        }
-                    }
-                }
+                let ink = coverage(x, y, |px, py| in_ellipse(&dot, px, py));
+                let beyond = coverage(x, y, |px, py| ellipse_frame(&dot, px, py).1 < -4.5);
                 let skin = 28.0 + 0.3 * f64::from(y);
                 let v = skin * (1.0 - beyond) + 1.0 * beyond;
                 data[(y * w + x) as usize] = (v - (v - 2.0) * ink).round() as u8;
