@@ -106,7 +106,9 @@ pub fn run(args: CaptureBenchArgs) -> anyhow::Result<()> {
         .collect();
     let new_labeler = || {
         Labeler::new(rig.clone(), &layout, neutral.clone(), label_params.clone()).map(|mut l| {
-            l.set_marker_normals(normals.clone());
+            if !l.set_marker_normals(normals.clone()) {
+                tracing::warn!("the marker normals do not fit the layout: no roundness check");
+            }
             l
         })
     };

@@ -118,7 +118,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             )?;
             // As `replay` and `live` do: the face may be in any of the actor's expressions.
             labeler.set_expression_templates(take.layout.expression_templates(&take.dataset));
-            labeler.set_marker_normals(take.layout.neutral_normals(&take.dataset));
+            if !labeler.set_marker_normals(take.layout.neutral_normals(&take.dataset)) {
+                tracing::warn!("the marker normals do not fit the layout: no roundness check");
+            }
             Some(labeler.process(FrameIndex::new(0), [&results[0].dots, &results[1].dots]))
         }
         _ => None,

@@ -214,7 +214,7 @@ impl MarkerLayout {
     /// The unit normal of `dataset`'s neutral face at each marker (head frame, layout
     /// order), from the mesh's vertex normals: how round each painted dot can look from a
     /// camera ([`crate::track::Labeler::set_marker_normals`]). A marker on a vertex
-    /// without a normal gets the zero vector (then the labeler takes none).
+    /// without a normal gets the zero vector (its roundness is then not checked).
     pub fn neutral_normals(&self, dataset: &Dataset) -> Vec<Vector3<f64>> {
         let normals = vertex_normals(&dataset.neutral);
         self.markers

@@ -651,13 +651,15 @@ impl Labeler {
     /// The skin's normal at each marker on the neutral face (head frame, layout order;
     /// [`MarkerLayout::neutral_normals`]): with it, a blob much thinner than the marker's
     /// dot can look from the camera is not the marker's (see
-    /// [`LabelParams::min_roundness_ratio`]). Returns false, and keeps none, when the count
-    /// is not the layout's or a normal is not finite and of unit length.
+    /// [`LabelParams::min_roundness_ratio`]). A zero vector: that marker's normal is not
+    /// known (no check for it). Returns false, and keeps none, when the count is not the
+    /// layout's or a normal is neither of unit length nor zero.
     pub fn set_marker_normals(&mut self, normals: Vec<Vector3<f64>>) -> bool {
         let fits = normals.len() == self.neutral.len()
-            && normals
-                .iter()
-                .all(|n| n.iter().all(|v| v.is_finite()) && (n.norm() - 1.0).abs() < 1e-6);
+            && normals.iter().all(|n| {
+                n.iter().all(|v| v.is_finite())
+                    && ((n.norm() - 1.0).abs() < 1e-6 || n.norm() == 0.0)
+            });
         self.normals = if fits { normals } else { Vec::new() };
         fits
     }

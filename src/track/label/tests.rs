@@ -696,6 +696,14 @@ fn a_sliver_of_a_hidden_dot_is_not_taken_where_the_skin_faces_the_camera() {
         }
         (slivers_taken, others_labeled, others)
     };
+    // Normals of another count, or neither unit nor zero, are not taken; a zero one (a
+    // marker whose normal is not known) is.
+    let mut lab = labeler(&layout, &pts);
+    assert!(!lab.set_marker_normals(vec![Vector3::z(); 3]));
+    assert!(!lab.set_marker_normals(vec![Vector3::z() * 2.0; pts.len()]));
+    let mut some_unknown: Vec<Vector3<f64>> = pts.iter().map(normal_at).collect();
+    some_unknown[0] = Vector3::zeros();
+    assert!(lab.set_marker_normals(some_unknown));
     let (taken, labeled, all) = run(true);
     assert_eq!(taken, 0, "slivers taken for markers");
     // The rest of the face is labeled as before (the markers the cameras see, ~85 %).

@@ -168,7 +168,11 @@ impl Labeler {
                     gate_mm,
                     motion_px,
                     first_sighting: t.frames_since_seen != Some(0),
-                    normal: self.normals.get(i).map(|n| pose.rotation * n),
+                    normal: self
+                        .normals
+                        .get(i)
+                        .filter(|n| n.norm() > 0.0)
+                        .map(|n| pose.rotation * n),
                 }
             })
             .collect()
