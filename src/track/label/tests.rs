@@ -86,6 +86,12 @@ fn pose_facing(
     )
 }
 
+/// The head pose in cam1's frame, for head pose `pose` (head → cam0).
+fn cam1_from_head(rig: &StereoRig, pose: &Isometry3<f64>) -> Isometry3<f64> {
+    let r = UnitQuaternion::from_rotation_matrix(&rig.cam1_from_cam0.rotation);
+    Isometry3::from_parts(rig.cam1_from_cam0.translation, r) * pose
+}
+
 /// Detections of both cameras with the true marker of each (None: a spurious blob),
 /// shuffled. `hidden` markers are not drawn.
 fn observe(
@@ -100,11 +106,10 @@ fn observe(
     [0, 1].map(|c| {
         let mut items: Vec<(Point2<f64>, Option<usize>, f64)> = Vec::new();
         let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-        let cam_from_head: Isometry3<f64> = if c == 0 {
+        let cam_from_head = if c == 0 {
             *pose
         } else {
-            let r = UnitQuaternion::from_rotation_matrix(&rig.cam1_from_cam0.rotation);
-            Isometry3::from_parts(rig.cam1_from_cam0.translation, r) * pose
+            cam1_from_head(rig, pose)
         };
         for (k, p) in pts.iter().enumerate() {
             if hidden.contains(&k) {
@@ -582,10 +587,7 @@ fn a_freckle_beside_a_hidden_marker_is_not_taken_for_it() {
     let mut lab = labeler(&layout, &pts);
     let mut rng = Rng::new(106);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = {
-        let r = UnitQuaternion::from_rotation_matrix(&rig.cam1_from_cam0.rotation);
-        Isometry3::from_parts(rig.cam1_from_cam0.translation, r) * pose
-    };
+    let cam1_from_head = cam1_from_head(&rig, &pose);
     let hidden = [2, 5, 17, 23, 41, 60, 77];
     let hiding = 10..30;
     let mut freckles_near_gate = 0;
@@ -645,10 +647,7 @@ fn a_sliver_of_a_hidden_dot_is_not_taken_where_the_skin_faces_the_camera() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(7);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = {
-        let r = UnitQuaternion::from_rotation_matrix(&rig.cam1_from_cam0.rotation);
-        Isometry3::from_parts(rig.cam1_from_cam0.translation, r) * pose
-    };
+    let cam1_from_head = cam1_from_head(&rig, &pose);
     let covered: Vec<usize> = (0..pts.len())
         .filter(|&k| pts[k].x.abs() < 30.0 && pts[k].y.abs() < 30.0)
         .collect();
