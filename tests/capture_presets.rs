@@ -279,11 +279,11 @@ const PRESETS: &[(&str, Goal)] = &[
     (
         "cluttered",
         // The one wrong label is a smudged dot crossed by a hair (M064), its blob 5 px off
-        // the dot in both cameras. Measured 87.0 % labeled; the sensor
+        // the dot in both cameras. Measured 88.5 % labeled; the sensor
         // noise's realization alone moved this share by 1.4 points (82.6 → 81.2 % when
         // the noise generator changed), so the floor leaves that much.
         Goal::Floor {
-            labeled: 0.855,
+            labeled: 0.87,
             max_wrong: 3,
         },
     ),

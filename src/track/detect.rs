@@ -806,6 +806,24 @@ const SPLIT_MIN_CONTRAST_FACTOR: f64 = 2.0;
 /// [`DetectParams::min_area_px`].
 const SPLIT_MIN_AREA_FACTOR: usize = 2;
 
+/// Below this roundness a dot's blob is checked for hair across it ([`hair_free_core`]).
+const HAIR_CHECK_BELOW_ROUNDNESS: f64 = 0.6;
+
+/// Smallest roundness of a dot found under hair ([`hair_free_core`]): a dot seen up to
+/// about 60° from its normal.
+const HAIR_FREE_MIN_ROUNDNESS: f64 = 0.5;
+
+/// How much rounder than its component a dot found under hair must be.
+const HAIR_FREE_ROUNDNESS_GAIN: f64 = 0.2;
+
+/// Smallest minor axis of a dot found under hair, pixels: the opening of a dot seen
+/// edge-on (two or three pixels wide) can leave a short, round stub of its middle, at
+/// most five pixels across (this much as a minor axis `4√λ₂`).
+const HAIR_FREE_MIN_WIDTH_PX: f64 = 6.5;
+
+/// Smallest share of its component's pixels a dot found under hair holds.
+const HAIR_FREE_MIN_SHARE: f64 = 0.4;
+
 /// Measures a component of candidate pixels `(x, y, contrast)`; when it is too big or not
 /// round (a dot touching a dark shading band or crease), splits it by raising the contrast
 /// threshold (×1.6 per level, up to 4 levels) and measures the parts: dots inside
@@ -826,7 +844,15 @@ fn split_and_measure(
     let mut reason = RejectReason::TooLarge;
     if pixels.len() <= params.max_area_px {
         let found = if depth == 0 {
-            measure_blob(image, pixels, params)
+            // A thin blob may be a dot with hair across it: its core without the hair,
+            // when that is a rounder dot, is the dot.
+            measure_blob(image, pixels, params).map(|d| {
+                if d.roundness < HAIR_CHECK_BELOW_ROUNDNESS {
+                    hair_free_core(image, pixels, params, d.roundness).unwrap_or(d)
+                } else {
+                    d
+                }
+            })
         } else {
             // Parts of a split component: dots of some size and clearly dark (the
             // fragments of a crease are small and faint). A thin part is held to the
@@ -863,6 +889,14 @@ fn split_and_measure(
             rejected.as_deref_mut(),
         );
     }
+    // Hair as dark as the ink does not split off at any threshold: the component's core
+    // without it.
+    if depth == 0
+        && out.len() == found_before
+        && let Some(core) = hair_free_core(image, pixels, params, 0.0)
+    {
+        out.push(core);
+    }
     // A blob none of whose parts is a dot is listed once, at the top of its splitting.
     if depth == 0
         && out.len() == found_before
@@ -880,38 +914,129 @@ fn split_and_measure(
     }
 }
 
-/// The parts of a component above the raised contrast threshold `next`, each measured (or
-/// split further) by [`split_and_measure`].
-fn split_at(
+/// The dot inside a component of candidate pixels that hair (or any other stroke at most
+/// two pixels wide) crosses or touches: the component's morphological opening by a 3×3
+/// square removes such strokes and leaves whatever is at least three pixels wide whole.
+/// Some when exactly one part of the opening is a dot (by [`measure_blob`]) markedly
+/// rounder than the component's own `roundness` (0 when it was not measured): at least
+/// [`HAIR_FREE_MIN_ROUNDNESS`] and [`HAIR_FREE_ROUNDNESS_GAIN`] above it, at least
+/// [`HAIR_FREE_MIN_WIDTH_PX`] wide and holding [`HAIR_FREE_MIN_SHARE`] of the component's
+/// pixels: a dot seen edge-on is not turned into a piece of itself, and a freckle a hair
+/// touches is not taken for the dot of a component that is mostly hair.
+///
+/// An eyebrow hair is about 0.1 mm wide, under a pixel on any helmet camera; the ink,
+/// 1.5–4 mm across, is several pixels wide even seen at 75°.
+fn hair_free_core(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
-    next: u32,
-    depth: usize,
     params: &DetectParams,
-    out: &mut Vec<Detection>,
-    mut rejected: Option<&mut Vec<Rejection>>,
-) {
-    let kept: Vec<(usize, usize, u8)> = pixels
-        .iter()
-        .copied()
-        .filter(|p| u32::from(p.2) >= next)
-        .collect();
-    if kept.len() < params.min_area_px {
-        return;
+    roundness: f64,
+) -> Option<Detection> {
+    let min_area = SPLIT_MIN_AREA_FACTOR * params.min_area_px;
+    if pixels.len() < 2 * min_area {
+        return None;
     }
-    // Components of the kept pixels, on a grid over their bounding box.
-    let (bx0, by0, bx1, by1) = kept.iter().fold(
+    // The component on a grid over its bounding box, one pixel of border.
+    let (bx0, by0, bx1, by1) = pixels.iter().fold(
         (usize::MAX, usize::MAX, 0, 0),
         |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
     );
+    let (gw, gh) = (bx1 - bx0 + 3, by1 - by0 + 3);
+    let at = |x: usize, y: usize| (y - by0 + 1) * gw + (x - bx0 + 1);
+    let mut grid = vec![0u8; gw * gh];
+    for &(x, y, lv) in pixels {
+        grid[at(x, y)] = lv.max(1);
+    }
+    // Erosion: pixels whose whole 3×3 neighbourhood is in the component; then the
+    // component's pixels next to one of them (the dilation, within the component).
+    let full = |g: &[u8], i: usize| {
+        [
+            i - gw - 1,
+            i - gw,
+            i - gw + 1,
+            i - 1,
+            i,
+            i + 1,
+            i + gw - 1,
+            i + gw,
+            i + gw + 1,
+        ]
+        .iter()
+        .all(|&j| g[j] != 0)
+    };
+    let mut eroded = vec![false; gw * gh];
+    let mut any = false;
+    for y in 1..gh - 1 {
+        for x in 1..gw - 1 {
+            let i = y * gw + x;
+            if grid[i] != 0 && full(&grid, i) {
+                eroded[i] = true;
+                any = true;
+            }
+        }
+    }
+    if !any {
+        return None;
+    }
+    let opened: Vec<(usize, usize, u8)> = pixels
+        .iter()
+        .copied()
+        .filter(|&(x, y, _)| {
+            let i = at(x, y);
+            [
+                i - gw - 1,
+                i - gw,
+                i - gw + 1,
+                i - 1,
+                i,
+                i + 1,
+                i + gw - 1,
+                i + gw,
+                i + gw + 1,
+            ]
+            .iter()
+            .any(|&j| eroded[j])
+        })
+        .collect();
+    if opened.len() == pixels.len() {
+        return None;
+    }
+    let min_roundness = HAIR_FREE_MIN_ROUNDNESS.max(roundness + HAIR_FREE_ROUNDNESS_GAIN);
+    let min_px = (HAIR_FREE_MIN_SHARE * pixels.len() as f64).ceil() as usize;
+    let mut found = None;
+    let mut count = 0;
+    for_each_part(&opened, |part| {
+        if part.len() < min_area.max(min_px) {
+            return;
+        }
+        if let Ok(d) = measure_blob(image, part, params)
+            && d.roundness >= min_roundness
+            && d.diameter_px * d.roundness >= HAIR_FREE_MIN_WIDTH_PX
+        {
+            count += 1;
+            found = Some(d);
+        }
+    });
+    if count == 1 { found } else { None }
+}
+
+/// Calls `f` with each 8-connected part of `pixels` (its pixels `(x, y, level)`, levels
+/// non-zero).
+fn for_each_part(pixels: &[(usize, usize, u8)], mut f: impl FnMut(&[(usize, usize, u8)])) {
+    let Some((bx0, by0, bx1, by1)) = pixels.iter().fold(None, |acc, &(x, y, _)| {
+        let (a, b, c, d) = acc.unwrap_or((x, y, x, y));
+        Some((a.min(x), b.min(y), c.max(x), d.max(y)))
+    }) else {
+        return;
+    };
     let (gw, gh) = (bx1 - bx0 + 1, by1 - by0 + 1);
     let mut grid = vec![0u8; gw * gh];
-    for &(x, y, lv) in &kept {
-        grid[(y - by0) * gw + (x - bx0)] = lv;
+    for &(x, y, lv) in pixels {
+        grid[(y - by0) * gw + (x - bx0)] = lv.max(1);
     }
     let mut stack = Vec::new();
     let mut part = Vec::new();
-    for &(sx, sy, _) in &kept {
+    for &(sx, sy, _) in pixels {
         let s0 = (sy - by0) * gw + (sx - bx0);
         if grid[s0] == 0 {
             continue;
@@ -938,16 +1063,40 @@ fn split_at(
                 }
             }
         }
+        f(&part);
+    }
+}
+
+/// The parts of a component above the raised contrast threshold `next`, each measured (or
+/// split further) by [`split_and_measure`].
+fn split_at(
+    image: &GrayImage,
+    pixels: &[(usize, usize, u8)],
+    next: u32,
+    depth: usize,
+    params: &DetectParams,
+    out: &mut Vec<Detection>,
+    mut rejected: Option<&mut Vec<Rejection>>,
+) {
+    let kept: Vec<(usize, usize, u8)> = pixels
+        .iter()
+        .copied()
+        .filter(|p| u32::from(p.2) >= next)
+        .collect();
+    if kept.len() < params.min_area_px {
+        return;
+    }
+    for_each_part(&kept, |part| {
         split_and_measure(
             image,
-            &part,
+            part,
             next,
             depth + 1,
             params,
             out,
             rejected.as_deref_mut(),
         );
-    }
+    });
 }
 
 /// Filters and measures one blob; the reason when it fails a filter.
@@ -1313,6 +1462,48 @@ mod tests {
             *o = (f64::from(*o) - drop).round().clamp(0.0, 255.0) as u8;
         }
         out
+    }
+
+    #[test]
+    fn finds_a_dot_under_hair_as_dark_as_its_ink() {
+        // A dot 14 px across with one hair (0.9 px wide, 60 px long) across it 3 px off its
+        // centre, and one with two hairs, one ending on the dot: an eyebrow dot. Hair is
+        // as dark as the ink, so no contrast threshold splits it off.
+        let dots = [(60.3, 60.6), (140.7, 58.2)];
+        let hairs = [
+            (
+                60.3 + 3.0 * 0.6f64.sin(),
+                60.6 - 3.0 * 0.6f64.cos(),
+                30.0,
+                0.45,
+                0.6,
+            ),
+            (140.7, 58.2 + 2.0, 28.0, 0.45, -0.2),
+            (140.7 + 12.0, 58.2 - 12.0, 17.0, 0.45, 2.3),
+        ];
+        let mut shapes: Vec<_> = dots.iter().map(|&(x, y)| (x, y, 7.0, 7.0, 0.0)).collect();
+        shapes.extend(hairs);
+        let img = image_with_ellipses(&shapes);
+        let found = detect_markers(&img, &DetectParams::default());
+        for &(x, y) in &dots {
+            let near: Vec<_> = found
+                .iter()
+                .filter(|d| (d.centre_px - Point2::new(x, y)).norm() < 10.0)
+                .collect();
+            assert_eq!(near.len(), 1, "{found:?}");
+            let d = near[0];
+            // The dot itself: round, its own size (14 px and the rim), centred.
+            assert!(d.roundness > 0.8, "{d:?}");
+            assert!((13.0..16.5).contains(&d.diameter_px), "{d:?}");
+            let err = (d.centre_px - Point2::new(x, y)).norm();
+            assert!(err < 0.5, "centre off by {err:.2} px: {d:?}");
+        }
+        // A dot seen edge-on keeps its whole length (the opening is not applied to it).
+        let thin = (100.4, 60.3, 7.0, 1.6, 0.4);
+        let found = detect_markers(&image_with_ellipses(&[thin]), &DetectParams::default());
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(found[0].diameter_px > 13.0, "{:?}", found[0]);
+        assert!((found[0].centre_px - Point2::new(thin.0, thin.1)).norm() < 0.1);
     }
 
     #[test]
