@@ -666,7 +666,28 @@ impl LgiSolver {
             for &m in &cluster {
                 present_c[m as usize] = false;
             }
-            let weights = index.weights.recompute_shared(&present_c, &vertices)?;
+            // From the cached cluster nearest to this one, when it shares most of it (a
+            // hidden marker shown again, another hidden): only the vertices whose natural
+            // neighbours changed are queried again.
+            let nearest = self
+                .cluster_cache
+                .iter()
+                .map(|(k, (_, w))| (sorted_difference(k, &cluster), k, w))
+                .filter(|(d, ..)| d.0.len() + d.1.len() <= cluster.len() / 2)
+                .min_by_key(|(d, k, _)| (d.0.len() + d.1.len(), (*k).clone()));
+            let weights = match nearest {
+                Some(((added, removed), _, base)) => index.weights.update_shared(
+                    &present_c,
+                    &vertices,
+                    natural_neighbor::WeightsBefore {
+                        vertices: &base.vertices,
+                        weights: &base.weights,
+                        added: &added,
+                        removed: &removed,
+                    },
+                )?,
+                None => index.weights.recompute_shared(&present_c, &vertices)?,
+            };
             let w = Arc::new(ClusterWeights { vertices, weights });
             if self.cluster_cache.len() >= CLUSTER_CACHE {
                 // Forget the least recently used cluster.
@@ -688,6 +709,34 @@ impl LgiSolver {
             clusters: out,
         })
     }
+}
+
+/// The markers of `old` not in `new`, and of `new` not in `old` (both ascending).
+fn sorted_difference(old: &[u32], new: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    let (mut only_old, mut only_new) = (Vec::new(), Vec::new());
+    let (mut i, mut j) = (0, 0);
+    while i < old.len() || j < new.len() {
+        match (old.get(i), new.get(j)) {
+            (Some(a), Some(b)) if a == b => {
+                i += 1;
+                j += 1;
+            }
+            (Some(a), Some(b)) if a < b => {
+                only_old.push(*a);
+                i += 1;
+            }
+            (Some(a), None) => {
+                only_old.push(*a);
+                i += 1;
+            }
+            (_, Some(b)) => {
+                only_new.push(*b);
+                j += 1;
+            }
+            (None, None) => break,
+        }
+    }
+    (only_old, only_new)
 }
 
 /// Whether a bundle is present and finite.

@@ -37,6 +37,12 @@
 //! clusters are removed too or not. Each cluster's weights can then be computed (and
 //! cached) on its own: in a stream the set of missing markers changes almost every frame,
 //! while its clusters (an occluded eyelid, one edge-on dot) recur.
+//!
+//! A helmet rig does not see every marker: a third to a half of them may be hidden for a
+//! whole take, and they make one large cluster, which every marker shown or hidden beside
+//! it changes. A new cluster is then computed from the cached one nearest to it
+//! ([`NaturalNeighborWeights::update_shared`]): only the vertices whose natural neighbours
+//! changed are queried again (a quarter of the queries on the `cluttered` synth preset).
 
 use nalgebra::{Point2, Point3};
 use spade::{DelaunayTriangulation, HasPosition, Triangulation};
@@ -318,6 +324,22 @@ impl NaturalNeighborWeights {
     }
 }
 
+/// The weights of a list of vertices computed for other missing markers
+/// ([`NaturalNeighborWeights::update_shared`]): the list (ascending), its weights, and the
+/// markers that were missing then and are present now (`added`), or present then and
+/// missing now (`removed`).
+#[derive(Debug, Clone, Copy)]
+pub struct WeightsBefore<'a> {
+    /// The vertices, ascending.
+    pub vertices: &'a [u32],
+    /// Their weights.
+    pub weights: &'a SharedWeights,
+    /// Markers missing then, present now.
+    pub added: &'a [u32],
+    /// Markers present then, missing now.
+    pub removed: &'a [u32],
+}
+
 /// Weights of a list of vertices, those of vertices that copy the same source stored once
 /// ([`NaturalNeighborWeights::recompute_shared`]).
 #[derive(Debug, Clone, Default)]
@@ -345,6 +367,101 @@ impl SharedWeights {
     /// Whether the list is empty.
     pub fn is_empty(&self) -> bool {
         self.slot.is_empty()
+    }
+}
+
+impl NaturalNeighborWeights {
+    /// [`Self::recompute_shared`] for `present`, from the weights of an earlier set of
+    /// missing markers: only the vertices whose natural neighbours changed are queried
+    /// again, the others keep their weights.
+    ///
+    /// Sibson weights at a point depend only on its natural neighbours, the sites of the
+    /// Delaunay triangles whose circumcircles hold it (within its inserted cell the
+    /// Voronoi diagram is that of those sites). A vertex keeps them unless it had weight on
+    /// a marker now removed, or lies in the circumcircle of a triangle of the new diagram
+    /// at a marker now added (then it has weight on it). A vertex outside the hull takes
+    /// the weights of its closest hull edge instead; the hull only shrinks when markers are
+    /// removed (and edges not at a removed marker stay), so only an added marker on the
+    /// new hull can move it: then every vertex is queried again. A stream's missing
+    /// markers change by a few a frame while most of them stay hidden, and their cluster
+    /// (one large one on a helmet rig, which does not see half the face) changes with them.
+    ///
+    /// # Errors
+    /// [`NaturalNeighborError::NoMarkers`] when no marker is present.
+    pub fn update_shared(
+        &self,
+        present: &[bool],
+        vertices: &[u32],
+        before: WeightsBefore<'_>,
+    ) -> Result<SharedWeights, NaturalNeighborError> {
+        let tri = triangulate(&self.marker_uv, present)?;
+        let marker_count = self.marker_uv.len();
+        let mut is_added = vec![false; marker_count];
+        for &m in before.added {
+            if let Some(a) = is_added.get_mut(m as usize) {
+                *a = true;
+            }
+        }
+        let added = |m: u32| is_added.get(m as usize).copied().unwrap_or(false);
+        let degenerate = tri.num_vertices() < 3 || tri.all_vertices_on_line();
+        let on_hull = tri.undirected_edges().any(|e| {
+            e.is_part_of_convex_hull() && e.vertices().iter().any(|v| added(v.data().marker))
+        });
+        // Circumcircles at the added markers, a little grown: a vertex on one (within
+        // rounding) is queried again.
+        let circles: Vec<(Point2<f64>, f64)> = tri
+            .inner_faces()
+            .filter(|f| f.vertices().iter().any(|v| added(v.data().marker)))
+            .map(|f| {
+                let (c, r2) = f.circumcircle();
+                (Point2::new(c.x, c.y), r2 * (1.0 + 1e-9) + 1e-12)
+            })
+            .collect();
+        let mut is_removed = vec![false; marker_count];
+        for &m in before.removed {
+            if let Some(r) = is_removed.get_mut(m as usize) {
+                *r = true;
+            }
+        }
+        let removed = |m: u32| is_removed.get(m as usize).copied().unwrap_or(false);
+        let nn = tri.natural_neighbor();
+        let mut buf = Vec::new();
+        let mut done: std::collections::HashMap<u32, u32> = Default::default();
+        let mut out = SharedWeights {
+            slot: Vec::with_capacity(vertices.len()),
+            offsets: vec![0],
+            entries: Vec::new(),
+        };
+        for &v in vertices {
+            let s = self.source[v as usize];
+            let slot = match done.get(&s) {
+                Some(&k) => k,
+                None => {
+                    let k = (out.offsets.len() - 1) as u32;
+                    done.insert(s, k);
+                    let uv = self.uv[s as usize];
+                    let kept = before
+                        .vertices
+                        .binary_search(&v)
+                        .ok()
+                        .map(|i| before.weights.of(i))
+                        .filter(|w| {
+                            !(degenerate
+                                || on_hull
+                                || w.iter().any(|e| removed(e.0))
+                                || circles.iter().any(|(c, r2)| (uv - c).norm_squared() <= *r2))
+                        });
+                    match kept {
+                        Some(w) => out.entries.extend_from_slice(w),
+                        None => out.entries.extend(weights_at(&tri, &nn, uv, &mut buf)),
+                    }
+                    out.offsets.push(out.entries.len() as u32);
+                    k
+                }
+            };
+            out.slot.push(slot);
+        }
+        Ok(out)
     }
 }
 
@@ -652,6 +769,93 @@ mod tests {
             }
         }
         assert!(compared > 10_000, "{compared}");
+    }
+
+    /// Weights updated from those of another set of missing markers equal weights
+    /// computed afresh, on random layouts and changes (markers hidden and shown, on the
+    /// hull and inside it, many missing at once), and the update queries fewer vertices.
+    #[test]
+    fn updated_weights_equal_weights_computed_afresh() {
+        let mesh = grid(30, 1.0);
+        let n = mesh.vertex_count() as u32;
+        let mut rng: rand::rngs::StdRng = rand::SeedableRng::seed_from_u64(11);
+        let mut next = move |below: u32| rand::Rng::random_range(&mut rng, 0..below);
+        let (mut compared, mut kept) = (0, 0);
+        for _ in 0..40 {
+            let mut markers: Vec<u32> = Vec::new();
+            while markers.len() < 40 {
+                let v = next(n);
+                if !markers.contains(&v) {
+                    markers.push(v);
+                }
+            }
+            let w = NaturalNeighborWeights::build(&mesh, &|_| true, &markers).unwrap();
+            let support = w.support(markers.len());
+            let verts_of = |present: &[bool]| {
+                let mut v: Vec<u32> = (0..markers.len())
+                    .filter(|&m| !present[m])
+                    .flat_map(|m| support[m].iter().map(|e| e.0))
+                    .collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            };
+            // A helmet rig's view: a third of the markers hidden, then a few toggled.
+            let mut before = vec![true; markers.len()];
+            for _ in 0..12 {
+                before[next(markers.len() as u32) as usize] = false;
+            }
+            let before_verts = verts_of(&before);
+            let before_w = w.recompute_shared(&before, &before_verts).unwrap();
+            for _ in 0..6 {
+                let mut now = before.clone();
+                for _ in 0..1 + next(3) {
+                    let m = next(markers.len() as u32) as usize;
+                    now[m] = !now[m];
+                }
+                if now.iter().all(|p| !p) {
+                    continue;
+                }
+                let added: Vec<u32> = (0..markers.len() as u32)
+                    .filter(|&m| !before[m as usize] && now[m as usize])
+                    .collect();
+                let removed: Vec<u32> = (0..markers.len() as u32)
+                    .filter(|&m| before[m as usize] && !now[m as usize])
+                    .collect();
+                let verts = verts_of(&now);
+                let fresh = w.recompute_shared(&now, &verts).unwrap();
+                let updated = w
+                    .update_shared(
+                        &now,
+                        &verts,
+                        WeightsBefore {
+                            vertices: &before_verts,
+                            weights: &before_w,
+                            added: &added,
+                            removed: &removed,
+                        },
+                    )
+                    .unwrap();
+                let get =
+                    |ws: &[(u32, f64)], m: u32| ws.iter().find(|e| e.0 == m).map_or(0.0, |e| e.1);
+                for (k, v) in verts.iter().enumerate() {
+                    let (a, b) = (fresh.of(k), updated.of(k));
+                    for m in 0..markers.len() as u32 {
+                        assert!(
+                            (get(a, m) - get(b, m)).abs() < 1e-9,
+                            "vertex {v}: {a:?} vs {b:?}"
+                        );
+                    }
+                    compared += 1;
+                    if let Ok(i) = before_verts.binary_search(v) {
+                        kept += usize::from(before_w.of(i) == b);
+                    }
+                }
+            }
+        }
+        assert!(compared > 10_000, "{compared}");
+        // Most vertices keep their weights (the update is worth its while).
+        assert!(kept * 2 > compared, "{kept} of {compared}");
     }
 
     #[test]
