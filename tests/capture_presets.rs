@@ -278,13 +278,13 @@ const PRESETS: &[(&str, Goal)] = &[
     ("wide-mixed", Goal::Full),
     (
         "cluttered",
-        // The one wrong label is a smudged dot crossed by a hair (M064), its blob 5 px off
-        // the dot in both cameras. Measured 88.5 % labeled; the sensor
-        // noise's realization alone moved this share by 1.4 points (82.6 → 81.2 % when
-        // the noise generator changed), so the floor leaves that much.
+        // Measured 88.4 % labeled, no wrong label (the last one, a smudged dot crossed by
+        // a hair, went with the fill rule of first sightings); the sensor noise's
+        // realization alone moved this share by 1.4 points (82.6 → 81.2 % when the noise
+        // generator changed), so the floor leaves that much, and one wrong label.
         Goal::Floor {
             labeled: 0.87,
-            max_wrong: 3,
+            max_wrong: 1,
         },
     ),
     ("wiped-moles", Goal::Full),

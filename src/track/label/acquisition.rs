@@ -31,7 +31,7 @@ impl Labeler {
                 .filter(|&a| pixels[c][a].is_some())
                 .collect();
             if idx.len() > max {
-                let quality = |a: usize| self.blobs[c].get(a).map_or(0.0, |b| b.1);
+                let quality = |a: usize| self.blobs[c].get(a).map_or(0.0, |b| b.quality);
                 idx.sort_by(|&a, &b| quality(b).total_cmp(&quality(a)).then(a.cmp(&b)));
                 idx.truncate(max);
                 idx.sort_unstable();

@@ -189,6 +189,14 @@ pub struct LabelParams {
     /// [`LabelParams::min_roundness_ratio`] assumes the dot turned that much further
     /// from the camera. Default 25.
     pub normal_slack_deg: f64,
+    /// At a marker's first sighting (see [`LabelParams::first_sighting_size_ratio`]), the
+    /// blob must fill at least this share of the ellipse of its second moments (its area
+    /// over `π/4 · major · minor`, see [`BlobShape::fill`]); 0: no check. A dot, whole,
+    /// partly hidden or seen from any angle, is a filled ellipse (0.85–1.05 on the synth
+    /// presets, 1 % of dots under 0.7 on cluttered skin); a crease fragment, a smeared dot
+    /// with a hair across it, or a dot with a mole at its side is not (0.40–0.53 for the
+    /// wrong labels this rule removed). Default 0.6.
+    pub first_sighting_min_fill: f64,
     /// Acquisition: at most this many detections per image take part, the best by
     /// quality (bounds the time of an attempt on skin with hundreds of blobs). Default
     /// 400.
@@ -239,6 +247,7 @@ impl Default for LabelParams {
             first_sighting_size_ratio: (0.7, 1.35),
             min_roundness_ratio: 0.7,
             normal_slack_deg: 25.0,
+            first_sighting_min_fill: 0.6,
             acquire_max_detections: 400,
             acquire_iterations_per_frame: 150,
             acquire_hypotheses_per_frame: 12_000,
@@ -341,6 +350,9 @@ impl LabelParams {
         }
         if !(0.0..=1.0).contains(&self.min_roundness_ratio) {
             return Err(err("min_roundness_ratio", "must be in [0, 1]"));
+        }
+        if !(0.0..=1.0).contains(&self.first_sighting_min_fill) {
+            return Err(err("first_sighting_min_fill", "must be in [0, 1]"));
         }
         if !(0.0..=90.0).contains(&self.normal_slack_deg) {
             return Err(err("normal_slack_deg", "must be in [0, 90] degrees"));
@@ -459,9 +471,8 @@ pub struct Labeler {
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
-    /// The current frame's detections: measured diameter, quality and roundness, per
-    /// camera.
-    blobs: [Vec<(f64, f64, f64)>; 2],
+    /// The shapes of the current frame's detections, per camera.
+    blobs: [Vec<BlobShape>; 2],
     /// An acquisition under way over several frames.
     acquisition: acquisition::Search,
     /// Marker positions (head frame, layout order) of expressions acquisition tries
@@ -490,6 +501,34 @@ struct Prediction {
     first_sighting: bool,
     /// The skin's normal at the marker (cam0 frame), when known.
     normal: Option<Vector3<f64>>,
+}
+
+/// What the labeler reads of a detection's shape.
+#[derive(Debug, Clone, Copy)]
+struct BlobShape {
+    /// [`Detection::diameter_px`].
+    diameter_px: f64,
+    /// [`Detection::quality`].
+    quality: f64,
+    /// [`Detection::roundness`].
+    roundness: f64,
+    /// The share of the ellipse of its second moments the blob fills: its area over
+    /// `π/4 · major · minor` with `major` [`Detection::diameter_px`] and `minor` that
+    /// times [`Detection::roundness`] (a filled ellipse: 1, a filled disc's pixels about
+    /// 1 with its antialiased rim); NaN when not measured.
+    fill: f64,
+}
+
+impl BlobShape {
+    fn of(d: &Detection) -> Self {
+        let ellipse = std::f64::consts::FRAC_PI_4 * d.diameter_px * d.diameter_px * d.roundness;
+        Self {
+            diameter_px: d.diameter_px,
+            quality: d.quality,
+            roundness: d.roundness,
+            fill: d.area_px as f64 / ellipse,
+        }
+    }
 }
 
 /// A labeled marker before it becomes output.
@@ -711,12 +750,7 @@ impl Labeler {
             detections: [detections[0].len(), detections[1].len()],
             ..LabelStats::default()
         };
-        self.blobs = [0, 1].map(|c| {
-            detections[c]
-                .iter()
-                .map(|d| (d.diameter_px, d.quality, d.roundness))
-                .collect()
-        });
+        self.blobs = [0, 1].map(|c| detections[c].iter().map(BlobShape::of).collect());
         // Detections with non-finite centres are never used.
         let pixels: [Vec<Option<Point2<f64>>>; 2] = [0, 1].map(|c| {
             detections[c]

@@ -39,7 +39,7 @@ impl Labeler {
         ];
         (0..2).all(|c| {
             // A detector that does not measure sizes gives NaN: no size check.
-            let Some(&(measured, _, _)) = self.blobs[c].get(det[c]) else {
+            let Some(measured) = self.blobs[c].get(det[c]).map(|b| b.diameter_px) else {
                 return true;
             };
             if !measured.is_finite() {
@@ -82,7 +82,7 @@ impl Labeler {
             ),
         ];
         (0..2).all(|c| {
-            let Some(&(_, _, roundness)) = self.blobs[c].get(det[c]) else {
+            let Some(roundness) = self.blobs[c].get(det[c]).map(|b| b.roundness) else {
                 return true;
             };
             let (sight, n) = &views[c];
@@ -92,6 +92,18 @@ impl Labeler {
             }
             let angle = cos.min(1.0).acos() + p.normal_slack_deg.to_radians();
             roundness >= p.min_roundness_ratio * angle.min(std::f64::consts::FRAC_PI_2).cos()
+        })
+    }
+
+    /// Whether detections `det` (cam0, cam1) both fill their ellipses as a dot does
+    /// ([`super::LabelParams::first_sighting_min_fill`]); true for a blob whose fill was
+    /// not measured.
+    pub(super) fn filled_like_a_dot(&self, det: [usize; 2]) -> bool {
+        let min = self.params.first_sighting_min_fill;
+        (0..2).all(|c| {
+            self.blobs[c]
+                .get(det[c])
+                .is_none_or(|b| !b.fill.is_finite() || b.fill >= min)
         })
     }
 
@@ -338,7 +350,8 @@ impl Labeler {
                         p.dot_size_ratio
                     },
                 )
-                && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b]))
+                && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b])
+                && (!preds[i].first_sighting || self.filled_like_a_dot([a, b])))
             .then_some(bundle)
         };
         let mut labels = Vec::new();
