@@ -809,6 +809,11 @@ const SPLIT_MIN_AREA_FACTOR: usize = 2;
 /// Below this roundness a dot's blob is checked for hair across it ([`hair_free_core`]).
 const HAIR_CHECK_BELOW_ROUNDNESS: f64 = 0.6;
 
+/// Below this fill of its second moments' ellipse (area over `π/4 · major · minor`) a
+/// thin blob is checked for hair across it: a dot, seen from any angle, fills it (0.85–1.05
+/// on the synth presets); hair across one adds length and few pixels.
+const HAIR_CHECK_BELOW_FILL: f64 = 0.8;
+
 /// Smallest roundness of a dot found under hair ([`hair_free_core`]): a dot seen up to
 /// about 60° from its normal.
 const HAIR_FREE_MIN_ROUNDNESS: f64 = 0.5;
@@ -846,8 +851,19 @@ fn split_and_measure(
         let found = if depth == 0 {
             // A thin blob may be a dot with hair across it: its core without the hair,
             // when that is a rounder dot, is the dot.
+            // Worth a look: a blob that does not fill its ellipse as a dot does (a stroke
+            // across a dot adds length, not area), and wide enough to hold a core. The core
+            // holds a share `s` of the pixels, so the blob's second moments are at least `s`
+            // times the core's in every direction, and its minor axis at least `√s` times
+            // the core's.
+            let core_fits = |d: &Detection| {
+                let minor = d.diameter_px * d.roundness;
+                let fill = d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * minor);
+                fill < HAIR_CHECK_BELOW_FILL
+                    && minor >= HAIR_FREE_MIN_SHARE.sqrt() * HAIR_FREE_MIN_WIDTH_PX
+            };
             measure_blob(image, pixels, params).map(|d| {
-                if d.roundness < HAIR_CHECK_BELOW_ROUNDNESS {
+                if d.roundness < HAIR_CHECK_BELOW_ROUNDNESS && core_fits(&d) {
                     hair_free_core(image, pixels, params, d.roundness).unwrap_or(d)
                 } else {
                     d
@@ -890,9 +906,13 @@ fn split_and_measure(
         );
     }
     // Hair as dark as the ink does not split off at any threshold: the component's core
-    // without it.
+    // without it (when the component is dark enough, and wide enough to hold one: see
+    // `core_fits` above).
     if depth == 0
         && out.len() == found_before
+        && reason != RejectReason::LowContrast
+        && HAIR_FREE_MIN_SHARE.sqrt() * HAIR_FREE_MIN_WIDTH_PX
+            <= 4.0 * second_moments(pixels).1.max(0.0).sqrt()
         && let Some(core) = hair_free_core(image, pixels, params, 0.0)
     {
         out.push(core);
@@ -933,80 +953,24 @@ fn hair_free_core(
     roundness: f64,
 ) -> Option<Detection> {
     let min_area = SPLIT_MIN_AREA_FACTOR * params.min_area_px;
-    if pixels.len() < 2 * min_area {
+    // Too small to hold a dot and hair, or so large that its share would be larger than
+    // any dot.
+    if pixels.len() < 2 * min_area
+        || HAIR_FREE_MIN_SHARE * pixels.len() as f64 > params.max_area_px as f64
+    {
         return None;
     }
-    // The component on a grid over its bounding box, one pixel of border.
-    let (bx0, by0, bx1, by1) = pixels.iter().fold(
-        (usize::MAX, usize::MAX, 0, 0),
-        |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
-    );
-    let (gw, gh) = (bx1 - bx0 + 3, by1 - by0 + 3);
-    let at = |x: usize, y: usize| (y - by0 + 1) * gw + (x - bx0 + 1);
-    let mut grid = vec![0u8; gw * gh];
-    for &(x, y, lv) in pixels {
-        grid[at(x, y)] = lv.max(1);
-    }
-    // Erosion: pixels whose whole 3×3 neighbourhood is in the component; then the
-    // component's pixels next to one of them (the dilation, within the component).
-    let full = |g: &[u8], i: usize| {
-        [
-            i - gw - 1,
-            i - gw,
-            i - gw + 1,
-            i - 1,
-            i,
-            i + 1,
-            i + gw - 1,
-            i + gw,
-            i + gw + 1,
-        ]
-        .iter()
-        .all(|&j| g[j] != 0)
-    };
-    let mut eroded = vec![false; gw * gh];
-    let mut any = false;
-    for y in 1..gh - 1 {
-        for x in 1..gw - 1 {
-            let i = y * gw + x;
-            if grid[i] != 0 && full(&grid, i) {
-                eroded[i] = true;
-                any = true;
-            }
-        }
-    }
-    if !any {
-        return None;
-    }
-    let opened: Vec<(usize, usize, u8)> = pixels
-        .iter()
-        .copied()
-        .filter(|&(x, y, _)| {
-            let i = at(x, y);
-            [
-                i - gw - 1,
-                i - gw,
-                i - gw + 1,
-                i - 1,
-                i,
-                i + 1,
-                i + gw - 1,
-                i + gw,
-                i + gw + 1,
-            ]
-            .iter()
-            .any(|&j| eroded[j])
-        })
-        .collect();
-    if opened.len() == pixels.len() {
+    let min_px = (HAIR_FREE_MIN_SHARE * pixels.len() as f64).ceil() as usize;
+    let opened = opening_3x3(pixels);
+    if opened.len() < min_area.max(min_px) || opened.len() == pixels.len() {
         return None;
     }
     let min_roundness = HAIR_FREE_MIN_ROUNDNESS.max(roundness + HAIR_FREE_ROUNDNESS_GAIN);
-    let min_px = (HAIR_FREE_MIN_SHARE * pixels.len() as f64).ceil() as usize;
     let mut found = None;
     let mut count = 0;
     for_each_part(&opened, |part| {
-        if part.len() < min_area.max(min_px) {
+        // A part larger than any dot (a nostril, the mouth) is not one.
+        if part.len() < min_area.max(min_px) || part.len() > params.max_area_px {
             return;
         }
         if let Ok(d) = measure_blob(image, part, params)
@@ -1018,6 +982,100 @@ fn hair_free_core(
         }
     });
     if count == 1 { found } else { None }
+}
+
+/// The morphological opening of a set of pixels `(x, y, level)` by a 3×3 square: the
+/// pixels of the set within one pixel (8-neighbourhood) of a pixel whose whole 3×3
+/// neighbourhood is in the set. Worked on each row's runs, so a long thin stroke costs its
+/// pixels, not its bounding box.
+fn opening_3x3(pixels: &[(usize, usize, u8)]) -> Vec<(usize, usize, u8)> {
+    let mut sorted;
+    let pixels = if pixels.is_sorted_by_key(|p| (p.1, p.0)) {
+        pixels
+    } else {
+        sorted = pixels.to_vec();
+        sorted.sort_unstable_by_key(|p| (p.1, p.0));
+        &sorted[..]
+    };
+    let (Some(first), Some(last)) = (pixels.first(), pixels.last()) else {
+        return Vec::new();
+    };
+    let (y0, rows) = (first.1, last.1 - first.1 + 1);
+    // Centres of three pixels in a row (each run shrunk by one at both ends), as
+    // inclusive column ranges, row by row: row k's are `centres[starts[k]..starts[k + 1]]`.
+    let mut centres: Vec<(usize, usize)> = Vec::new();
+    let mut starts = vec![0usize; rows + 1];
+    let mut run: Option<(usize, usize, usize)> = None;
+    let close = |r: (usize, usize, usize), centres: &mut Vec<(usize, usize)>| {
+        if r.2 >= r.1 + 2 {
+            centres.push((r.1 + 1, r.2 - 1));
+        }
+    };
+    for &(x, y, _) in pixels {
+        match run {
+            Some((ry, a, b)) if ry == y && x <= b + 1 => run = Some((ry, a, b.max(x))),
+            _ => {
+                if let Some(r) = run {
+                    close(r, &mut centres);
+                }
+                let first_row = run.map_or(0, |r| r.0 - y0 + 1);
+                starts[first_row..=y - y0].fill(centres.len());
+                run = Some((y, x, x));
+            }
+        }
+    }
+    if let Some(r) = run {
+        close(r, &mut centres);
+    }
+    starts[rows] = centres.len();
+    let row = |k: usize| &centres[starts[k]..starts[k + 1]];
+    // The erosion: centres of three in each of three rows; row k's are
+    // `eroded[marks[k]..marks[k + 1]]`.
+    let mut eroded: Vec<(usize, usize)> = Vec::new();
+    let mut marks = vec![0usize; rows + 1];
+    for (k, mark) in marks.iter_mut().enumerate().take(rows) {
+        *mark = eroded.len();
+        if k > 0 && k + 1 < rows && !row(k).is_empty() {
+            let middle = intersect_ranges(row(k - 1), row(k));
+            eroded.extend(intersect_ranges(&middle, row(k + 1)));
+        }
+    }
+    marks[rows] = eroded.len();
+    if eroded.is_empty() {
+        return Vec::new();
+    }
+    // The dilation of the erosion within the set: a pixel next to an eroded one in the
+    // rows around.
+    pixels
+        .iter()
+        .copied()
+        .filter(|&(x, y, _)| {
+            let k = y - y0;
+            (k.saturating_sub(1)..=(k + 1).min(rows - 1)).any(|j| {
+                eroded[marks[j]..marks[j + 1]]
+                    .iter()
+                    .any(|r| r.0 <= x + 1 && x <= r.1 + 1)
+            })
+        })
+        .collect()
+}
+
+/// The intersection of two sorted lists of disjoint inclusive ranges.
+fn intersect_ranges(a: &[(usize, usize)], b: &[(usize, usize)]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (lo, hi) = (a[i].0.max(b[j].0), a[i].1.min(b[j].1));
+        if lo <= hi {
+            out.push((lo, hi));
+        }
+        if a[i].1 < b[j].1 {
+            i += 1;
+        } else {
+            j += 1;
+        }
+    }
+    out
 }
 
 /// Calls `f` with each 8-connected part of `pixels` (its pixels `(x, y, level)`, levels
@@ -1100,12 +1158,9 @@ fn split_at(
 }
 
 /// Filters and measures one blob; the reason when it fails a filter.
-fn measure_blob(
-    image: &GrayImage,
-    pixels: &[(usize, usize, u8)],
-    params: &DetectParams,
-) -> Result<Detection, RejectReason> {
-    let (w, h) = (image.width as usize, image.height as usize);
+/// The eigenvalues `λ₁ ≥ λ₂` of the covariance of a set of pixels, each pixel counted as
+/// its square (`+1/12` per axis).
+fn second_moments(pixels: &[(usize, usize, u8)]) -> (f64, f64) {
     let n = pixels.len() as f64;
     let (mut mx, mut my) = (0.0, 0.0);
     for &(x, y, _) in pixels {
@@ -1122,11 +1177,19 @@ fn measure_blob(
         syy += dy * dy;
         sxy += dx * dy;
     }
-    // Eigenvalues of the 2×2 covariance (+1/12 per axis: a pixel's own extent).
     let (a, b, cc) = (sxx / n + 1.0 / 12.0, syy / n + 1.0 / 12.0, sxy / n);
     let tr = a + b;
     let disc = ((a - b).powi(2) / 4.0 + cc * cc).sqrt();
-    let (l1, l2) = (tr / 2.0 + disc, tr / 2.0 - disc);
+    (tr / 2.0 + disc, tr / 2.0 - disc)
+}
+
+fn measure_blob(
+    image: &GrayImage,
+    pixels: &[(usize, usize, u8)],
+    params: &DetectParams,
+) -> Result<Detection, RejectReason> {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let (l1, l2) = second_moments(pixels);
     let roundness = if l1 > 0.0 {
         (l2.max(0.0) / l1).sqrt()
     } else {
@@ -1504,6 +1567,59 @@ mod tests {
         assert_eq!(found.len(), 1, "{found:?}");
         assert!(found[0].diameter_px > 13.0, "{:?}", found[0]);
         assert!((found[0].centre_px - Point2::new(thin.0, thin.1)).norm() < 0.1);
+    }
+
+    #[test]
+    fn opening_on_runs_equals_the_opening_on_a_grid() {
+        let mut rng: rand::rngs::StdRng = rand::SeedableRng::seed_from_u64(5);
+        let mut next = move |below: usize| rand::Rng::random_range(&mut rng, 0..below);
+        for _ in 0..200 {
+            // Random discs and one-pixel strokes on a 40×40 grid.
+            let (w, h) = (40usize, 40usize);
+            let mut set = vec![false; w * h];
+            for _ in 0..1 + next(3) {
+                let (cx, cy, r) = (next(w) as f64, next(h) as f64, next(6) as f64);
+                for y in 0..h {
+                    for x in 0..w {
+                        let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+                        set[y * w + x] |= dx * dx + dy * dy <= r * r;
+                    }
+                }
+            }
+            for _ in 0..next(4) {
+                let (x0, y0, x1, y1) = (next(w), next(h), next(w), next(h));
+                for t in 0..=60 {
+                    let f = f64::from(t) / 60.0;
+                    let x = (x0 as f64 + f * (x1 as f64 - x0 as f64)).round() as usize;
+                    let y = (y0 as f64 + f * (y1 as f64 - y0 as f64)).round() as usize;
+                    set[y * w + x] = true;
+                }
+            }
+            let pixels: Vec<(usize, usize, u8)> = (0..w * h)
+                .filter(|&i| set[i])
+                .map(|i| (i % w, i / w, 1))
+                .collect();
+            let inside = |x: i64, y: i64| {
+                x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && set[y as usize * w + x as usize]
+            };
+            let square = |x: i64, y: i64, f: &dyn Fn(i64, i64) -> bool| {
+                (-1..=1).all(|dy| (-1..=1).all(|dx| f(x + dx, y + dy)))
+            };
+            let eroded = |x: i64, y: i64| square(x, y, &inside);
+            let expected: Vec<(usize, usize, u8)> = pixels
+                .iter()
+                .copied()
+                .filter(|&(x, y, _)| {
+                    let (x, y) = (x as i64, y as i64);
+                    (-1..=1).any(|dy| (-1..=1).any(|dx| eroded(x + dx, y + dy)))
+                })
+                .collect();
+            assert_eq!(opening_3x3(&pixels), expected);
+            // Unsorted input gives the same set (in raster order).
+            let mut shuffled = pixels.clone();
+            shuffled.reverse();
+            assert_eq!(opening_3x3(&shuffled), expected);
+        }
     }
 
     #[test]
