@@ -297,8 +297,19 @@ impl NaturalNeighborWeights {
         let tri = triangulate(&self.marker_uv, present)?;
         let nn = tri.natural_neighbor();
         let mut buf = Vec::new();
-        // Many vertices copy the same source (the non-face parts of the head): one query
-        // per distinct source.
+        Ok(self.per_source(vertices, |_, s, out| {
+            out.extend(weights_at(&tri, &nn, self.uv[s as usize], &mut buf));
+        }))
+    }
+
+    /// The weights of `vertices`, computed once per distinct source (many vertices copy
+    /// the same one: the non-face parts of the head) by `weigh(vertex, source, entries)`,
+    /// which appends them to `entries`; `vertex` is the first of the list with that source.
+    fn per_source(
+        &self,
+        vertices: &[u32],
+        mut weigh: impl FnMut(u32, u32, &mut Vec<(u32, f64)>),
+    ) -> SharedWeights {
         let mut done: std::collections::HashMap<u32, u32> = Default::default();
         let mut out = SharedWeights {
             slot: Vec::with_capacity(vertices.len()),
@@ -312,15 +323,14 @@ impl NaturalNeighborWeights {
                 None => {
                     let k = (out.offsets.len() - 1) as u32;
                     done.insert(s, k);
-                    out.entries
-                        .extend(weights_at(&tri, &nn, self.uv[s as usize], &mut buf));
+                    weigh(v, s, &mut out.entries);
                     out.offsets.push(out.entries.len() as u32);
                     k
                 }
             };
             out.slot.push(slot);
         }
-        Ok(out)
+        out
     }
 }
 
@@ -426,42 +436,24 @@ impl NaturalNeighborWeights {
         let removed = |m: u32| is_removed.get(m as usize).copied().unwrap_or(false);
         let nn = tri.natural_neighbor();
         let mut buf = Vec::new();
-        let mut done: std::collections::HashMap<u32, u32> = Default::default();
-        let mut out = SharedWeights {
-            slot: Vec::with_capacity(vertices.len()),
-            offsets: vec![0],
-            entries: Vec::new(),
-        };
-        for &v in vertices {
-            let s = self.source[v as usize];
-            let slot = match done.get(&s) {
-                Some(&k) => k,
-                None => {
-                    let k = (out.offsets.len() - 1) as u32;
-                    done.insert(s, k);
-                    let uv = self.uv[s as usize];
-                    let kept = before
-                        .vertices
-                        .binary_search(&v)
-                        .ok()
-                        .map(|i| before.weights.of(i))
-                        .filter(|w| {
-                            !(degenerate
-                                || on_hull
-                                || w.iter().any(|e| removed(e.0))
-                                || circles.iter().any(|(c, r2)| (uv - c).norm_squared() <= *r2))
-                        });
-                    match kept {
-                        Some(w) => out.entries.extend_from_slice(w),
-                        None => out.entries.extend(weights_at(&tri, &nn, uv, &mut buf)),
-                    }
-                    out.offsets.push(out.entries.len() as u32);
-                    k
-                }
-            };
-            out.slot.push(slot);
-        }
-        Ok(out)
+        Ok(self.per_source(vertices, |v, s, out| {
+            let uv = self.uv[s as usize];
+            let kept = before
+                .vertices
+                .binary_search(&v)
+                .ok()
+                .map(|i| before.weights.of(i))
+                .filter(|w| {
+                    !(degenerate
+                        || on_hull
+                        || w.iter().any(|e| removed(e.0))
+                        || circles.iter().any(|(c, r2)| (uv - c).norm_squared() <= *r2))
+                });
+            match kept {
+                Some(w) => out.extend_from_slice(w),
+                None => out.extend(weights_at(&tri, &nn, uv, &mut buf)),
+            }
+        }))
     }
 }
 
@@ -712,6 +704,18 @@ mod tests {
         }
     }
 
+    /// `count` distinct values below `n` from `next`.
+    fn distinct(next: &mut impl FnMut(u32) -> u32, n: u32, count: usize) -> Vec<u32> {
+        let mut out: Vec<u32> = Vec::new();
+        while out.len() < count {
+            let v = next(n);
+            if !out.contains(&v) {
+                out.push(v);
+            }
+        }
+        out
+    }
+
     /// Weights of the missing markers' supports computed cluster by cluster equal those
     /// computed with every missing marker removed at once, on random layouts and missing
     /// sets (markers on the hull, neighbours missing together, vertices outside the hull).
@@ -723,13 +727,7 @@ mod tests {
         let mut next = move |below: u32| rand::Rng::random_range(&mut rng, 0..below);
         let mut compared = 0;
         for _ in 0..60 {
-            let mut markers: Vec<u32> = Vec::new();
-            while markers.len() < 40 {
-                let v = next(n);
-                if !markers.contains(&v) {
-                    markers.push(v);
-                }
-            }
+            let markers = distinct(&mut next, n, 40);
             let w = NaturalNeighborWeights::build(&mesh, &|_| true, &markers).unwrap();
             let support = w.support(markers.len());
             let supports: Vec<&[(u32, f64)]> = support.iter().map(|s| &s[..]).collect();
@@ -782,13 +780,7 @@ mod tests {
         let mut next = move |below: u32| rand::Rng::random_range(&mut rng, 0..below);
         let (mut compared, mut kept) = (0, 0);
         for _ in 0..40 {
-            let mut markers: Vec<u32> = Vec::new();
-            while markers.len() < 40 {
-                let v = next(n);
-                if !markers.contains(&v) {
-                    markers.push(v);
-                }
-            }
+            let markers = distinct(&mut next, n, 40);
             let w = NaturalNeighborWeights::build(&mesh, &|_| true, &markers).unwrap();
             let support = w.support(markers.len());
             let verts_of = |present: &[bool]| {

@@ -160,6 +160,36 @@ fn observe(
 }
 
 /// (correct, wrong) labels of a frame; panics on nothing.
+/// Adds a blob that is no marker's at `point` (head frame) to both cameras' detections:
+/// `shape(dot_px)` gives its major axis, roundness and fill (its area over its ellipse's)
+/// from the blob a dot makes there (`dot_px`, as in [`observe`]). Its pixels, per camera.
+fn add_blob(
+    rig: &StereoRig,
+    pose: &Isometry3<f64>,
+    obs: &mut [(Vec<Detection>, Vec<Option<usize>>); 2],
+    point: &Point3<f64>,
+    shape: impl Fn(f64) -> (f64, f64, f64),
+) -> [Option<Point2<f64>>; 2] {
+    let cam1 = cam1_from_head(rig, pose);
+    [(0, *pose), (1, cam1)].map(|(c, cam_from_head)| {
+        let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+        let pc = cam_from_head * point;
+        let px = cam.project(&pc.coords)?;
+        let (diameter, roundness, fill) = shape(cam.fx() * 2.4 / pc.coords.norm() + 1.0);
+        let ellipse = std::f64::consts::FRAC_PI_4 * diameter * diameter * roundness;
+        obs[c].0.push(Detection {
+            centre_px: px,
+            area_px: (fill * ellipse) as usize,
+            roundness,
+            contrast_dn: 35.0,
+            quality: 0.3,
+            diameter_px: diameter,
+        });
+        obs[c].1.push(None);
+        Some(px)
+    })
+}
+
 fn count(frame: &LabeledFrame, truth: &[Vec<Option<usize>>; 2]) -> (usize, usize) {
     let (mut ok, mut wrong) = (0, 0);
     for (i, m) in frame.markers.iter().enumerate() {
@@ -588,7 +618,6 @@ fn a_freckle_beside_a_hidden_marker_is_not_taken_for_it() {
     let mut lab = labeler(&layout, &pts);
     let mut rng = Rng::new(106);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let hidden = [2, 5, 17, 23, 41, 60, 77];
     let hiding = 10..30;
     let mut freckles_near_gate = 0;
@@ -602,27 +631,13 @@ fn a_freckle_beside_a_hidden_marker_is_not_taken_for_it() {
         for &k in hide.iter().filter(|_| f > hiding.start) {
             let n = normal_at(&pts[k]);
             let freckle = pts[k] + n.cross(&Vector3::x()).normalize() * 1.2;
-            for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-                let pc = cam_from_head * freckle;
-                let Some(px) = cam.project(&pc.coords) else {
-                    continue;
-                };
-                let dot_px = cam.fx() * 2.4 / pc.coords.norm();
-                let diameter = 0.6 * dot_px - 2.0;
-                obs[c].0.push(Detection {
-                    centre_px: px,
-                    area_px: (std::f64::consts::FRAC_PI_4 * diameter * diameter * 0.9) as usize,
-                    roundness: 0.9,
-                    contrast_dn: 40.0,
-                    quality: 0.4,
-                    diameter_px: diameter,
-                });
-                obs[c].1.push(None);
-                if c == 0 {
-                    let at = cam.project(&(pose * pts[k]).coords).unwrap();
-                    freckles_near_gate += usize::from((at - px).norm() < 6.0);
-                }
+            // 0.6 of a dot's size, round and filled.
+            let at = add_blob(&rig, &pose, &mut obs, &freckle, |dot_px| {
+                (0.6 * (dot_px - 1.0) - 2.0, 0.9, 1.0)
+            });
+            if let Some(px) = at[0] {
+                let dot = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
+                freckles_near_gate += usize::from((dot - px).norm() < 6.0);
             }
         }
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
@@ -726,7 +741,6 @@ fn a_crease_where_a_marker_comes_back_is_not_taken_for_it() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(8);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let hidden = [3, 9, 21, 30, 47, 66];
     let hiding = 10..20;
     let run = |min_fill: f64| -> (usize, bool) {
@@ -753,28 +767,9 @@ fn a_crease_where_a_marker_comes_back_is_not_taken_for_it() {
             for &k in hide.iter().filter(|_| f > hiding.start) {
                 let n = normal_at(&pts[k]);
                 let crease = pts[k] + n.cross(&Vector3::y()).normalize() * 1.0;
-                for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-                    let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-                    let pc = cam_from_head * crease;
-                    let Some(px) = cam.project(&pc.coords) else {
-                        continue;
-                    };
-                    let diameter = cam.fx() * 2.4 / pc.coords.norm() + 1.0;
-                    let roundness = 0.35;
-                    obs[c].0.push(Detection {
-                        centre_px: px,
-                        area_px: (0.45
-                            * std::f64::consts::FRAC_PI_4
-                            * diameter
-                            * diameter
-                            * roundness) as usize,
-                        roundness,
-                        contrast_dn: 30.0,
-                        quality: 0.2,
-                        diameter_px: diameter,
-                    });
-                    obs[c].1.push(None);
-                }
+                add_blob(&rig, &pose, &mut obs, &crease, |dot_px| {
+                    (dot_px, 0.35, 0.45)
+                });
             }
             let truth = [obs[0].1.clone(), obs[1].1.clone()];
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
