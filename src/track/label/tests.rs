@@ -159,7 +159,6 @@ fn observe(
     })
 }
 
-/// (correct, wrong) labels of a frame; panics on nothing.
 /// Adds a blob that is no marker's at `point` (head frame) to both cameras' detections:
 /// `shape(dot_px)` gives its major axis, roundness and fill (its area over its ellipse's)
 /// from the blob a dot makes there (`dot_px`, as in [`observe`]). Its pixels, per camera.
@@ -190,6 +189,7 @@ fn add_blob(
     })
 }
 
+/// (correct, wrong) labels of a frame; panics on nothing.
 fn count(frame: &LabeledFrame, truth: &[Vec<Option<usize>>; 2]) -> (usize, usize) {
     let (mut ok, mut wrong) = (0, 0);
     for (i, m) in frame.markers.iter().enumerate() {
