@@ -674,7 +674,10 @@ impl LgiSolver {
                 .iter()
                 .map(|(k, (_, w))| (sorted_difference(k, &cluster), k, w))
                 .filter(|(d, ..)| d.0.len() + d.1.len() <= cluster.len() / 2)
-                .min_by_key(|(d, k, _)| (d.0.len() + d.1.len(), (*k).clone()));
+                .min_by(|(da, ka, _), (db, kb, _)| {
+                    // Ties go to the smaller cluster list: the cache's order is a hash's.
+                    (da.0.len() + da.1.len(), ka).cmp(&(db.0.len() + db.1.len(), kb))
+                });
             let weights = match nearest {
                 Some(((added, removed), _, base)) => index.weights.update_shared(
                     &present_c,
