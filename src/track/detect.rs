@@ -287,6 +287,8 @@ pub struct MarkerDetector {
     component_of_run: Vec<u32>,
     /// Pixels per component.
     sizes: Vec<usize>,
+    /// Bounding box per component `(x0, y0, x1, y1)`, inclusive, ROI coordinates.
+    boxes: Vec<(u32, u32, u32, u32)>,
     /// Pixels `(x, y, contrast)` of the components measured, contiguous per component.
     pixels: Vec<(usize, usize, u8)>,
 }
@@ -299,7 +301,7 @@ impl MarkerDetector {
 
     /// Finds the dots in `image` (see the module docs).
     pub fn detect(&mut self, image: &GrayImage, params: &DetectParams) -> Vec<Detection> {
-        self.detect_into(image, params, None, None)
+        self.detect_into(image, params, None, None, None)
     }
 
     /// Finds the dots inside the union of `windows` (rectangles `(x0, y0, x1, y1)`, end
@@ -314,6 +316,16 @@ impl MarkerDetector {
         image: &GrayImage,
         params: &DetectParams,
         windows: &[Rect],
+    ) -> Vec<Detection> {
+        self.windowed(image, params, windows, None)
+    }
+
+    fn windowed(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        windows: &[Rect],
+        centres: Option<&[Rect]>,
     ) -> Vec<Detection> {
         let (w, h) = (image.width as usize, image.height as usize);
         let clip = params.roi.map_or((0, 0, w, h), |(a, b, c, d)| {
@@ -332,7 +344,34 @@ impl MarkerDetector {
             roi: Some((x0 as u32, y0 as u32, x1 as u32, y1 as u32)),
             ..params.clone()
         };
-        self.detect_into(image, &bounded, Some(&union), None)
+        self.detect_into(image, &bounded, Some(&union), centres, None)
+    }
+
+    /// The detections of [`MarkerDetector::detect_in_windows`] whose centre lies in one
+    /// of `centres` (rectangles like `windows`; while tracking, where a detection can be a
+    /// candidate of a window's marker), without measuring the blobs whose centre cannot
+    /// (their box, grown by the rim the centroid weighs, meets none of them): most of the
+    /// clutter a window holds around its marker (freckles, pores, hair) costs its candidate
+    /// pixels only. At two scales, the large scale's blobs are measured within half the
+    /// largest blob a dot makes ([`DetectParams::scaled_to_dot_sizes`]) of `centres`, and
+    /// the small scale's inside the large blobs too, so that the rule that picks one of
+    /// the two scales for a blob sees all it needs (exactly so for large blobs up to that
+    /// size).
+    pub fn detect_in_windows_near(
+        &mut self,
+        image: &GrayImage,
+        params: &DetectParams,
+        windows: &[Rect],
+        centres: &[Rect],
+    ) -> Vec<Detection> {
+        let mut found = self.windowed(image, params, windows, Some(centres));
+        found.retain(|d| {
+            let (x, y) = (d.centre_px.x, d.centre_px.y);
+            centres.iter().any(|&(a, b, c, e)| {
+                x >= f64::from(a) && x < f64::from(c) && y >= f64::from(b) && y < f64::from(e)
+            })
+        });
+        found
     }
 
     /// [`MarkerDetector::detect`], and the blobs of candidate pixels that were not taken
@@ -343,7 +382,7 @@ impl MarkerDetector {
         params: &DetectParams,
     ) -> (Vec<Detection>, Vec<Rejection>) {
         let mut rejected = Vec::new();
-        let found = self.detect_into(image, params, None, Some(&mut rejected));
+        let found = self.detect_into(image, params, None, None, Some(&mut rejected));
         (found, rejected)
     }
 
@@ -352,6 +391,7 @@ impl MarkerDetector {
         image: &GrayImage,
         params: &DetectParams,
         windows: Option<&SearchWindows>,
+        centres: Option<&[Rect]>,
         rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (w, h) = (image.width as usize, image.height as usize);
@@ -372,12 +412,12 @@ impl MarkerDetector {
         let roi = (x0, y0, x1, y1);
         let scales = params.window_scales();
         let [small] = scales[..] else {
-            return self.detect_two_scales(image, params, &scales, roi, windows, rejected);
+            return self.detect_two_scales(image, params, &scales, roi, windows, centres, rejected);
         };
         let scaled = params.scaled_to_dot_sizes();
         self.threshold(image, &scaled, small, roi, windows);
         let mut out = Vec::new();
-        self.components(image, &scaled, roi, 0, &mut out, rejected);
+        self.components(image, &scaled, roi, 0, centres, &mut out, rejected);
         out
     }
 
@@ -388,6 +428,10 @@ impl MarkerDetector {
     /// small scale's detections inside it (the ring a small window makes of a large dot)
     /// are dropped; the large scale's smaller blobs are the small scale's business (in
     /// its wider window a small dot beside a crease or a nostril merges with them).
+    /// With `centres` (see [`MarkerDetector::detect_in_windows_near`]) the large scale
+    /// goes first: the small scale also measures the blobs a large blob it may keep could
+    /// hold, so that the rule above sees them.
+    #[allow(clippy::too_many_arguments)]
     fn detect_two_scales(
         &mut self,
         image: &GrayImage,
@@ -395,21 +439,11 @@ impl MarkerDetector {
         scales: &[usize],
         roi: (usize, usize, usize, usize),
         windows: Option<&SearchWindows>,
+        centres: Option<&[Rect]>,
         rejected: Option<&mut Vec<Rejection>>,
     ) -> Vec<Detection> {
         let (small, large) = (scales[0], scales[scales.len() - 1]);
         let scaled = params.scaled_to_dot_sizes();
-        // The small scale measures blobs up to its own limit (larger ones are the large
-        // scale's), but foreshortened dots of any size in the range: a large dot seen edge-on
-        // is a thin ellipse the large window does not take (it keeps round blobs only).
-        let fine_params = DetectParams {
-            elongated_max_length_px: scaled.elongated_max_length_px,
-            min_area_px: scaled.min_area_px,
-            ..params.clone()
-        };
-        let mut fine = Vec::new();
-        self.threshold(image, &fine_params, small, roi, windows);
-        self.components(image, &fine_params, roi, 0, &mut fine, rejected);
         let limit = small_scale_limit_px(small);
         // The large scale keeps round blobs (roundness ≥ 0.5) wider than `limit`
         // (`4√λ₁ > limit`). An 8-connected set of pixels spread that wide in both
@@ -419,9 +453,70 @@ impl MarkerDetector {
         // cannot be one: they are not measured (bound taken at 1.2·limit, for the pixel
         // grid and the `+1/12` of a pixel's own extent).
         let coarse_min_px = (1.2 * limit).floor() as usize;
+        // A large blob around a small one whose centre is in `centres` has its own centre
+        // within half its size (and a pixel) of them.
+        let coarse_centres: Option<Vec<Rect>> = centres.map(|centres| {
+            let grow = (0.625 * scaled.max_dot_px.clamp(1.0, 400.0) + 1.0).ceil() as u32;
+            centres
+                .iter()
+                .map(|&(a, b, c, d)| {
+                    (
+                        a.saturating_sub(grow),
+                        b.saturating_sub(grow),
+                        c.saturating_add(grow),
+                        d.saturating_add(grow),
+                    )
+                })
+                .collect()
+        });
         let mut coarse = Vec::new();
         self.threshold(image, &scaled, large, roi, windows);
-        self.components(image, &scaled, roi, coarse_min_px, &mut coarse, None);
+        self.components(
+            image,
+            &scaled,
+            roi,
+            coarse_min_px,
+            coarse_centres.as_deref(),
+            &mut coarse,
+            None,
+        );
+        let kept_if_alone =
+            |c: &Detection| c.diameter_px > limit && c.roundness >= COARSE_MIN_ROUNDNESS;
+        coarse.retain(kept_if_alone);
+        // The small scale measures blobs up to its own limit (larger ones are the large
+        // scale's), but foreshortened dots of any size in the range: a large dot seen edge-on
+        // is a thin ellipse the large window does not take (it keeps round blobs only).
+        let fine_params = DetectParams {
+            elongated_max_length_px: scaled.elongated_max_length_px,
+            min_area_px: scaled.min_area_px,
+            ..params.clone()
+        };
+        // Where the small scale's blobs matter: `centres`, and inside every large blob.
+        let fine_centres: Option<Vec<Rect>> = centres.map(|centres| {
+            let reach = |c: &Detection| {
+                let r = 0.5 * c.diameter_px + 1.0;
+                let lo = |v: f64| (v - r).floor().max(0.0) as u32;
+                let hi = |v: f64| (v + r).ceil().max(0.0) as u32 + 1;
+                let (x, y) = (c.centre_px.x, c.centre_px.y);
+                (lo(x), lo(y), hi(x), hi(y))
+            };
+            centres
+                .iter()
+                .copied()
+                .chain(coarse.iter().map(reach))
+                .collect()
+        });
+        let mut fine = Vec::new();
+        self.threshold(image, &fine_params, small, roi, windows);
+        self.components(
+            image,
+            &fine_params,
+            roi,
+            0,
+            fine_centres.as_deref(),
+            &mut fine,
+            rejected,
+        );
         let inside = |c: &Detection, f: &Detection| {
             (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
         };
@@ -432,9 +527,6 @@ impl MarkerDetector {
         // small dot merged with a shadow in the large window makes a large blob around it
         // whose centre is off).
         coarse.retain(|c| {
-            if !(c.diameter_px > limit && c.roundness >= COARSE_MIN_ROUNDNESS) {
-                return false;
-            }
             let mut held = fine.iter().filter(|f| inside(c, f));
             match (held.next(), held.next()) {
                 (None, _) => true,
@@ -451,17 +543,21 @@ impl MarkerDetector {
 
     /// Connected components (8-connectivity) of the candidate mask over the ROI, each
     /// measured or split by [`split_and_measure`]; components of fewer than `min_px`
-    /// pixels (or than the smallest blob area) are left out.
+    /// pixels (or than the smallest blob area) are left out, and with `centres`, those
+    /// whose detections' centres cannot lie in any of them (the centroid weighs the
+    /// component's box grown by [`RIM_PX`]).
     ///
     /// The mask is read as runs of candidates along each row, joined to the runs they
     /// touch in the row above (union-find); a component's pixels are then gathered run by
     /// run. Components are measured in the raster order of their first pixel.
+    #[allow(clippy::too_many_arguments)]
     fn components(
         &mut self,
         image: &GrayImage,
         params: &DetectParams,
         (x0, y0, x1, _): (usize, usize, usize, usize),
         min_px: usize,
+        centres: Option<&[Rect]>,
         out: &mut Vec<Detection>,
         mut rejected: Option<&mut Vec<Rejection>>,
     ) {
@@ -474,6 +570,7 @@ impl MarkerDetector {
             parent,
             component_of_run,
             sizes,
+            boxes,
             pixels,
             ..
         } = self;
@@ -526,20 +623,44 @@ impl MarkerDetector {
         // Component of every run, numbered in raster order of their first run, and sizes.
         component_of_run.clear();
         sizes.clear();
+        boxes.clear();
         for (i, run) in runs.iter().enumerate() {
             // The root is the component's first run (the smallest index).
             let root = find_root(parent, i as u32) as usize;
             let id = if root == i {
                 sizes.push(0);
+                boxes.push((run.start, run.row, run.end - 1, run.row));
                 (sizes.len() - 1) as u32
             } else {
                 component_of_run[root]
             };
             component_of_run.push(id);
             sizes[id as usize] += (run.end - run.start) as usize;
+            let b = &mut boxes[id as usize];
+            *b = (b.0.min(run.start), b.1, b.2.max(run.end - 1), run.row);
+        }
+        // Components measured: large enough, and near a centre.
+        let floor = min_px.max(params.min_area_px).max(1);
+        if let Some(centres) = centres {
+            let (ox, oy, rim) = (x0 as i64, y0 as i64, RIM_PX as i64);
+            for (n, b) in sizes.iter_mut().zip(boxes.iter()) {
+                if *n < floor {
+                    continue;
+                }
+                let (bx0, by0) = (i64::from(b.0) + ox - rim, i64::from(b.1) + oy - rim);
+                let (bx1, by1) = (i64::from(b.2) + ox + rim, i64::from(b.3) + oy + rim);
+                let near = centres.iter().any(|&(a, b, c, d)| {
+                    bx0 < i64::from(c)
+                        && bx1 >= i64::from(a)
+                        && by0 < i64::from(d)
+                        && by1 >= i64::from(b)
+                });
+                if !near {
+                    *n = 0;
+                }
+            }
         }
         // Pixels of the components kept, contiguous per component.
-        let floor = min_px.max(params.min_area_px).max(1);
         let mut offsets: Vec<usize> = Vec::with_capacity(sizes.len() + 1);
         let mut total = 0;
         for &n in sizes.iter() {
@@ -1902,6 +2023,110 @@ mod tests {
                     .is_empty()
             );
         }
+    }
+
+    /// A 320×200 image of gradient-lit skin with `n` random dark discs (radius 0.8-11 px,
+    /// 25-150 levels of contrast, overlapping at times): dots, freckles, moles and
+    /// dots merged with them.
+    fn cluttered_image(seed: u64, n: usize) -> GrayImage {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let (w, h) = (320usize, 200usize);
+        let mut v: Vec<f64> = (0..w * h)
+            .map(|i| 120.0 + 80.0 * (i % w) as f64 / w as f64)
+            .collect();
+        for _ in 0..n {
+            let (cx, cy) = (
+                rng.random_range(0.0..w as f64),
+                rng.random_range(0.0..h as f64),
+            );
+            let r: f64 = if rng.random_bool(0.3) {
+                rng.random_range(5.0..11.0)
+            } else {
+                rng.random_range(0.8..5.0)
+            };
+            let depth: f64 = rng.random_range(25.0..150.0);
+            let (x0, x1) = (
+                (cx - r - 1.0).max(0.0) as usize,
+                ((cx + r + 2.0) as usize).min(w),
+            );
+            let (y0, y1) = (
+                (cy - r - 1.0).max(0.0) as usize,
+                ((cy + r + 2.0) as usize).min(h),
+            );
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    // Coverage from 4×4 samples.
+                    let mut inside = 0;
+                    for k in 0..16 {
+                        let px = x as f64 + (f64::from(k % 4) + 0.5) / 4.0 - 0.5;
+                        let py = y as f64 + (f64::from(k / 4) + 0.5) / 4.0 - 0.5;
+                        inside += usize::from((px - cx).powi(2) + (py - cy).powi(2) <= r * r);
+                    }
+                    v[y * w + x] -= depth * inside as f64 / 16.0;
+                }
+            }
+        }
+        GrayImage {
+            width: w as u32,
+            height: h as u32,
+            data: v
+                .iter()
+                .map(|x| x.clamp(0.0, 255.0).round() as u8)
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn detections_near_centres_are_those_of_the_windows() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+        let mut compared = 0;
+        for seed in 0..6 {
+            let img = cluttered_image(seed, 140);
+            // Two window scales (the default dot range) and one.
+            for params in [
+                DetectParams::default(),
+                DetectParams {
+                    max_dot_px: 12.0,
+                    ..Default::default()
+                },
+            ] {
+                let mut windows = Vec::new();
+                let mut centres = Vec::new();
+                for _ in 0..25 {
+                    let (x, y) = (rng.random_range(0..320u32), rng.random_range(0..200u32));
+                    let (g, r) = (rng.random_range(12..40u32), rng.random_range(3..20u32));
+                    windows.push((x.saturating_sub(g), y.saturating_sub(g), x + g, y + g));
+                    centres.push((x.saturating_sub(r), y.saturating_sub(r), x + r, y + r));
+                }
+                let mut detector = MarkerDetector::new();
+                let all = detector.detect_in_windows(&img, &params, &windows);
+                let near = detector.detect_in_windows_near(&img, &params, &windows, &centres);
+                let in_centres: Vec<Detection> = all
+                    .iter()
+                    .filter(|d| {
+                        centres.iter().any(|&(a, b, c, e)| {
+                            let (x, y) = (d.centre_px.x, d.centre_px.y);
+                            x >= f64::from(a)
+                                && x < f64::from(c)
+                                && y >= f64::from(b)
+                                && y < f64::from(e)
+                        })
+                    })
+                    .copied()
+                    .collect();
+                let key = |d: &Detection| (d.centre_px.x.to_bits(), d.centre_px.y.to_bits());
+                let mut expected = in_centres.clone();
+                expected.sort_by_key(key);
+                let mut got = near.clone();
+                got.sort_by_key(key);
+                assert_eq!(got, expected, "seed {seed}, {params:?}");
+                assert!(near.len() < all.len(), "seed {seed}: nothing was left out");
+                compared += near.len();
+            }
+        }
+        assert!(compared > 100, "{compared} detections compared");
     }
 
     #[test]

@@ -10,7 +10,9 @@ use crate::frame_index::FrameIndex;
 /// Each camera's detector looks where the labeler expects markers next: in one window
 /// around each predicted marker while tracking ([`Labeler::predicted_windows`]), in the
 /// predicted region of interest after an unsteady frame ([`Labeler::predicted_rois`]),
-/// and in the whole image (or [`DetectParams::roi`]) while acquiring.
+/// and in the whole image (or [`DetectParams::roi`]) while acquiring. In the windows, only
+/// the blobs that can be a marker's candidates are measured
+/// ([`Labeler::predicted_centres`]): a window's other detections are not reported.
 #[derive(Debug, Clone)]
 pub struct StereoTracker {
     labeler: Labeler,
@@ -51,6 +53,7 @@ impl StereoTracker {
     pub fn track(&mut self, index: FrameIndex, images: &[GrayImage; 2]) -> TrackedFrame {
         let rois = self.labeler.predicted_rois();
         let windows = self.labeler.predicted_windows();
+        let centres = self.labeler.predicted_centres();
         let detect = &self.detect;
         let [det0, det1] = &mut self.detectors;
         let find = |det: &mut MarkerDetector, c: usize| {
@@ -61,7 +64,7 @@ impl StereoTracker {
                 };
                 det.detect(&images[c], &params)
             } else {
-                det.detect_in_windows(&images[c], detect, windows[c])
+                det.detect_in_windows_near(&images[c], detect, windows[c], centres[c])
             }
         };
         let (d0, d1) = rayon::join(|| find(det0, 0), || find(det1, 1));

@@ -466,6 +466,9 @@ pub struct Labeler {
     rois: [Option<(u32, u32, u32, u32)>; 2],
     /// Per camera: the search windows of the next frame (empty: search the ROI).
     windows: [Vec<Rect>; 2],
+    /// Per camera and window: where a detection's centre can be a candidate of the
+    /// window's marker (see [`Labeler::predicted_centres`]).
+    centres: [Vec<Rect>; 2],
     /// Markers labeled in the last processed frame.
     last_labeled: usize,
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
@@ -638,6 +641,7 @@ impl Labeler {
             lost_count: 0,
             rois: [None, None],
             windows: [Vec::new(), Vec::new()],
+            centres: [Vec::new(), Vec::new()],
             last_labeled: 0,
             gate: EpipolarGate::new(EpipolarGateParams {
                 floor_px: params.max_reprojection_px,
@@ -714,6 +718,7 @@ impl Labeler {
         self.lost_count = 0;
         self.rois = [None, None];
         self.windows = [Vec::new(), Vec::new()];
+        self.centres = [Vec::new(), Vec::new()];
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -727,7 +732,9 @@ impl Labeler {
     /// predicted pixel next frame, for the detector's
     /// [`MarkerDetector::detect_in_windows`](crate::track::MarkerDetector::detect_in_windows):
     /// each holds the marker's gate (that of the final labeling pass), grown by half the
-    /// largest blob its dot may make there through the lens and
+    /// largest blob the final pass accepts for it there (its dot through the lens at the
+    /// top of [`LabelParams::dot_size_ratio`], or of
+    /// [`LabelParams::first_sighting_size_ratio`] for a marker not labeled this frame) and
     /// [`LabelParams::window_margin_px`], so that any detection the final pass could accept
     /// for it is found whole. The first pass, which only estimates the head pose, sees what
     /// the windows hold: its extra gate
@@ -741,6 +748,18 @@ impl Labeler {
     /// [`Labeler::predicted_rois`]).
     pub fn predicted_windows(&self) -> [&[Rect]; 2] {
         [&self.windows[0], &self.windows[1]]
+    }
+
+    /// Per camera, the boxes in which a detection's centre can be a candidate of a marker
+    /// in either labeling pass next frame, while [`Labeler::predicted_windows`] are
+    /// given: around each marker's predicted pixel, its gate in the pose pass (the final
+    /// pass's gate and [`LabelParams::pose_pass_extra_gate_px`], which also holds the
+    /// final pass's gate around a prediction the pose pass moved by up to that much).
+    /// Detections elsewhere in the windows are no marker's candidates: the detector need
+    /// not measure them
+    /// ([`MarkerDetector::detect_in_windows_near`](crate::track::MarkerDetector::detect_in_windows_near)).
+    pub fn predicted_centres(&self) -> [&[Rect]; 2] {
+        [&self.centres[0], &self.centres[1]]
     }
 
     /// Labels one stereo frame's detections (cam0, cam1). Never panics on any input.
@@ -858,16 +877,12 @@ impl Labeler {
                 .predicted_pose(1)
                 .map(|pose| self.predictions(&pose, 1, 0.0));
             let steady = stats.labeled as f64 >= WINDOWS_KEEP_SHARE * self.last_labeled as f64;
-            (self.rois, self.windows) = match preds {
-                Some(preds) => (
-                    self.compute_rois(&preds),
-                    if self.params.search_windows && steady {
-                        self.compute_windows(&preds)
-                    } else {
-                        [Vec::new(), Vec::new()]
-                    },
-                ),
-                None => ([None, None], [Vec::new(), Vec::new()]),
+            self.rois = preds
+                .as_ref()
+                .map_or([None, None], |preds| self.compute_rois(preds));
+            [self.windows, self.centres] = match preds {
+                Some(preds) if self.params.search_windows && steady => self.compute_windows(&preds),
+                _ => Default::default(),
             };
         }
         self.last_labeled = stats.labeled;
@@ -878,30 +893,42 @@ impl Labeler {
     }
 
     /// One search window per marker and camera around its predicted pixel next frame (see
-    /// [`Labeler::predicted_windows`]), from the predictions with the final pass's gates.
-    fn compute_windows(&self, preds: &[Prediction]) -> [Vec<Rect>; 2] {
-        let hi = self
-            .params
-            .dot_size_ratio
-            .1
-            .max(self.params.first_sighting_size_ratio.1);
-        [0, 1].map(|c| {
+    /// [`Labeler::predicted_windows`]), from the predictions with the final pass's gates,
+    /// and the boxes of [`Labeler::predicted_centres`] in them.
+    fn compute_windows(&self, preds: &[Prediction]) -> [[Vec<Rect>; 2]; 2] {
+        let p = &self.params;
+        let mut out: [[Vec<Rect>; 2]; 2] = Default::default();
+        let [windows, centres] = &mut out;
+        for (c, (windows, centres)) in windows.iter_mut().zip(centres.iter_mut()).enumerate() {
             let cam = if c == 0 {
                 &self.rig.cam0
             } else {
                 &self.rig.cam1
             };
             let (w, h) = (f64::from(cam.width_px), f64::from(cam.height_px));
-            preds
-                .iter()
-                .filter_map(|pr| {
-                    let q = pr.pixels[c]?;
-                    let largest_dot = self.largest_dot_px(&pr.point, c, hi)? + pr.motion_px[c];
-                    let g = pr.gate_px + 0.5 * largest_dot + self.params.window_margin_px;
-                    pixel_rect((q.x - g, q.y - g, q.x + g, q.y + g), w, h)
-                })
-                .collect()
-        })
+            for pr in preds {
+                let Some(q) = pr.pixels[c] else { continue };
+                // The largest blob the final pass accepts for the marker.
+                let hi = if pr.first_sighting {
+                    p.first_sighting_size_ratio.1
+                } else {
+                    p.dot_size_ratio.1
+                };
+                let Some(largest_dot) = self.largest_dot_px(&pr.point, c, hi) else {
+                    continue;
+                };
+                let g = pr.gate_px + 0.5 * (largest_dot + pr.motion_px[c]) + p.window_margin_px;
+                let Some(window) = pixel_rect((q.x - g, q.y - g, q.x + g, q.y + g), w, h) else {
+                    continue;
+                };
+                let r = pr.gate_px + p.pose_pass_extra_gate_px;
+                let centre = pixel_rect((q.x - r, q.y - r, q.x + r, q.y + r), w, h)
+                    .unwrap_or((window.0, window.1, window.0, window.1));
+                windows.push(window);
+                centres.push(centre);
+            }
+        }
+        out
     }
 
     /// Bounding boxes of the next frame's predicted marker pixels, grown by the pose pass's
