@@ -186,7 +186,9 @@ pub struct FrameResult {
     pub received_at: Instant,
     /// The two images (cam0, cam1).
     pub images: Arc<[GrayImage; 2]>,
-    /// Every detection per camera (labeled or not).
+    /// The detections per camera, labeled or not: every one while acquiring or searching
+    /// the region of interest; in search windows, those that could be a marker's (see
+    /// [`crate::track::StereoTracker`]).
     pub detections: [Vec<Detection>; 2],
     /// Per layout marker, in layout order.
     pub markers: Vec<MarkerResult>,
