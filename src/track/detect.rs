@@ -320,6 +320,7 @@ impl MarkerDetector {
         self.windowed(image, params, windows, None)
     }
 
+    /// Detection in the union of `windows`, measuring only near `centres` when given.
     fn windowed(
         &mut self,
         image: &GrayImage,
@@ -428,9 +429,9 @@ impl MarkerDetector {
     /// small scale's detections inside it (the ring a small window makes of a large dot)
     /// are dropped; the large scale's smaller blobs are the small scale's business (in
     /// its wider window a small dot beside a crease or a nostril merges with them).
-    /// With `centres` (see [`MarkerDetector::detect_in_windows_near`]) the large scale
-    /// goes first: the small scale also measures the blobs a large blob it may keep could
-    /// hold, so that the rule above sees them.
+    /// The large scale goes first: with `centres` (see
+    /// [`MarkerDetector::detect_in_windows_near`]) the small scale also measures the blobs
+    /// inside the large blobs it may keep, so that the rule above sees them.
     #[allow(clippy::too_many_arguments)]
     fn detect_two_scales(
         &mut self,
