@@ -497,7 +497,7 @@ impl MarkerDetector {
             let reach = |c: &Detection| {
                 let r = 0.5 * c.diameter_px + 1.0;
                 let lo = |v: f64| (v - r).floor().max(0.0) as u32;
-                let hi = |v: f64| (v + r).ceil().max(0.0) as u32 + 1;
+                let hi = |v: f64| ((v + r).ceil().max(0.0) as u32).saturating_add(1);
                 let (x, y) = (c.centre_px.x, c.centre_px.y);
                 (lo(x), lo(y), hi(x), hi(y))
             };
