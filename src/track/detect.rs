@@ -353,11 +353,11 @@ impl MarkerDetector {
     /// candidate of a window's marker), without measuring the blobs whose centre cannot
     /// (their box, grown by the rim the centroid weighs, meets none of them): most of the
     /// clutter a window holds around its marker (freckles, pores, hair) costs its candidate
-    /// pixels only. At two scales, the large scale's blobs are measured within half the
-    /// largest blob a dot makes ([`DetectParams::scaled_to_dot_sizes`]) of `centres`, and
-    /// the small scale's inside the large blobs too, so that the rule that picks one of
-    /// the two scales for a blob sees all it needs (exactly so for large blobs up to that
-    /// size).
+    /// pixels only. At two scales, the large scale's blobs are measured within a tenth of
+    /// the largest blob a dot makes ([`DetectParams::scaled_to_dot_sizes`]) of `centres`,
+    /// and the small scale's inside the large blobs too, so that the rule that picks one
+    /// of the two scales for a blob sees all it needs (exactly so for large blobs up to
+    /// that size).
     pub fn detect_in_windows_near(
         &mut self,
         image: &GrayImage,
@@ -454,10 +454,12 @@ impl MarkerDetector {
         // cannot be one: they are not measured (bound taken at 1.2·limit, for the pixel
         // grid and the `+1/12` of a pixel's own extent).
         let coarse_min_px = (1.2 * limit).floor() as usize;
-        // A large blob around a small one whose centre is in `centres` has its own centre
-        // within half its size (and a pixel) of them.
+        // A large blob kept drops the small blobs it holds, and it keeps at most one, at
+        // its own centre (within a tenth of its size, or 1.5 px): a large blob that drops a
+        // small one centred in `centres` has its own centre that close to them.
         let coarse_centres: Option<Vec<Rect>> = centres.map(|centres| {
-            let grow = (0.625 * scaled.max_dot_px.clamp(1.0, 400.0) + 1.0).ceil() as u32;
+            let largest = 1.25 * scaled.max_dot_px.clamp(1.0, 400.0);
+            let grow = (0.1 * largest).max(1.5).ceil() as u32 + 1;
             centres
                 .iter()
                 .map(|&(a, b, c, d)| {
@@ -2026,27 +2028,21 @@ mod tests {
         }
     }
 
-    /// A 320×200 image of gradient-lit skin with `n` random dark discs (radius 0.8-11 px,
-    /// 25-150 levels of contrast, overlapping at times): dots, freckles, moles and
-    /// dots merged with them.
-    fn cluttered_image(seed: u64, n: usize) -> GrayImage {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    /// A 320×200 image of gradient-lit skin darkened by discs `(cx, cy, r, depth)`
+    /// (antialiased, 4×4 samples per pixel; overlapping discs add up).
+    fn image_with_discs(discs: &[(f64, f64, f64, f64)]) -> GrayImage {
+        let ellipses: Vec<_> = discs.iter().map(|&(x, y, r, d)| (x, y, r, r, d)).collect();
+        image_with_patches(&ellipses)
+    }
+
+    /// [`image_with_discs`] with axis-aligned ellipses `(cx, cy, rx, ry, depth)`.
+    fn image_with_patches(discs: &[(f64, f64, f64, f64, f64)]) -> GrayImage {
         let (w, h) = (320usize, 200usize);
         let mut v: Vec<f64> = (0..w * h)
             .map(|i| 120.0 + 80.0 * (i % w) as f64 / w as f64)
             .collect();
-        for _ in 0..n {
-            let (cx, cy) = (
-                rng.random_range(0.0..w as f64),
-                rng.random_range(0.0..h as f64),
-            );
-            let r: f64 = if rng.random_bool(0.3) {
-                rng.random_range(5.0..11.0)
-            } else {
-                rng.random_range(0.8..5.0)
-            };
-            let depth: f64 = rng.random_range(25.0..150.0);
+        for &(cx, cy, rx, ry, depth) in discs {
+            let r = rx.max(ry);
             let (x0, x1) = (
                 (cx - r - 1.0).max(0.0) as usize,
                 ((cx + r + 2.0) as usize).min(w),
@@ -2057,12 +2053,12 @@ mod tests {
             );
             for y in y0..y1 {
                 for x in x0..x1 {
-                    // Coverage from 4×4 samples.
                     let mut inside = 0;
                     for k in 0..16 {
                         let px = x as f64 + (f64::from(k % 4) + 0.5) / 4.0 - 0.5;
                         let py = y as f64 + (f64::from(k / 4) + 0.5) / 4.0 - 0.5;
-                        inside += usize::from((px - cx).powi(2) + (py - cy).powi(2) <= r * r);
+                        let q = ((px - cx) / rx).powi(2) + ((py - cy) / ry).powi(2);
+                        inside += usize::from(q <= 1.0);
                     }
                     v[y * w + x] -= depth * inside as f64 / 16.0;
                 }
@@ -2076,6 +2072,70 @@ mod tests {
                 .map(|x| x.clamp(0.0, 255.0).round() as u8)
                 .collect(),
         }
+    }
+
+    /// [`image_with_discs`] with `n` random discs (radius 0.8-11 px, 25-150 levels of
+    /// contrast, overlapping at times): dots, freckles, moles and dots merged with them.
+    fn cluttered_image(seed: u64, n: usize) -> GrayImage {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let discs: Vec<(f64, f64, f64, f64)> = (0..n)
+            .map(|_| {
+                let (cx, cy) = (rng.random_range(0.0..320.0), rng.random_range(0.0..200.0));
+                let r = if rng.random_bool(0.3) {
+                    rng.random_range(5.0..11.0)
+                } else {
+                    rng.random_range(0.8..5.0)
+                };
+                (cx, cy, r, rng.random_range(25.0..150.0))
+            })
+            .collect();
+        image_with_discs(&discs)
+    }
+
+    /// The detections of `found` whose centres lie in one of `boxes`.
+    fn centred_in(found: &[Detection], boxes: &[Rect]) -> Vec<Detection> {
+        found
+            .iter()
+            .filter(|d| {
+                let (x, y) = (d.centre_px.x, d.centre_px.y);
+                boxes.iter().any(|&(a, b, c, e)| {
+                    x >= f64::from(a) && x < f64::from(c) && y >= f64::from(b) && y < f64::from(e)
+                })
+            })
+            .copied()
+            .collect()
+    }
+
+    #[test]
+    fn a_patch_around_dots_is_dropped_near_centres_as_in_the_windows() {
+        // A faint patch 26 px across (a large round blob for the large scale) with two
+        // ink dots in it 9 px either side of its centre: the large scale's rule drops the
+        // patch because it holds two small blobs. A centre box around the patch's centre
+        // only, which neither dot's blob reaches: the dots must still be measured for the
+        // rule, and the patch must not come back.
+        let img = image_with_discs(&[
+            (160.3, 100.6, 13.0, 35.0),
+            (151.2, 100.4, 3.0, 110.0),
+            (169.4, 100.9, 3.0, 110.0),
+        ]);
+        let params = DetectParams::default();
+        assert_eq!(params.window_scales().len(), 2);
+        let windows = [(110, 50, 210, 150)];
+        let centres = [(159, 99, 162, 102)];
+        let mut detector = MarkerDetector::new();
+        let all = detector.detect_in_windows(&img, &params, &windows);
+        let dots = |found: &[Detection]| {
+            found
+                .iter()
+                .filter(|d| (d.centre_px.y - 100.6).abs() < 2.0)
+                .map(|d| d.centre_px.x.round() as i64)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(dots(&all), [151, 169], "{all:?}");
+        let near = detector.detect_in_windows_near(&img, &params, &windows, &centres);
+        assert!(near.is_empty(), "{near:?}");
+        assert_eq!(near, centred_in(&all, &centres));
     }
 
     #[test]
@@ -2104,19 +2164,7 @@ mod tests {
                 let mut detector = MarkerDetector::new();
                 let all = detector.detect_in_windows(&img, &params, &windows);
                 let near = detector.detect_in_windows_near(&img, &params, &windows, &centres);
-                let in_centres: Vec<Detection> = all
-                    .iter()
-                    .filter(|d| {
-                        centres.iter().any(|&(a, b, c, e)| {
-                            let (x, y) = (d.centre_px.x, d.centre_px.y);
-                            x >= f64::from(a)
-                                && x < f64::from(c)
-                                && y >= f64::from(b)
-                                && y < f64::from(e)
-                        })
-                    })
-                    .copied()
-                    .collect();
+                let in_centres = centred_in(&all, &centres);
                 let key = |d: &Detection| (d.centre_px.x.to_bits(), d.centre_px.y.to_bits());
                 let mut expected = in_centres.clone();
                 expected.sort_by_key(key);
