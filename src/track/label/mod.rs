@@ -197,6 +197,38 @@ pub struct LabelParams {
     /// with a hair across it, or a dot with a mole at its side is not (0.40–0.53 for the
     /// wrong labels this rule removed). Default 0.6.
     pub first_sighting_min_fill: f64,
+    /// Whether a marker may be labeled on a worn dot: a blob that fails the dot's shape
+    /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],
+    /// [`LabelParams::first_sighting_min_fill`]) because sweat or a wipe smeared its ink
+    /// into a longer ellipse. Such a blob is taken only where the marker's neighbours put
+    /// it, not where its own track does: in both cameras its major axis within
+    /// [`LabelParams::worn_dot_size_ratio`], its minor axis at least
+    /// [`LabelParams::worn_dot_min_width_ratio`] of a dot's, and its centre within
+    /// [`LabelParams::worn_dot_centre_tolerance`] of the marker's position moved like its
+    /// neighbours labeled in the last frame (the last pose's head frame, carried by this
+    /// frame's pose; at least two such neighbours). A smear that keeps its ink around the
+    /// painted spot is labeled at its centre; a dot merged with a mole or a hair, a smear
+    /// dragged off to one side, or a sliver of a dot under a lip has its centre moved off
+    /// the spot by a quarter of a dot or more and is not. Default true.
+    pub worn_dots: bool,
+    /// The range of a worn dot's major axis, as ratios of the largest major axis a dot can
+    /// have there (its diameter at the largest magnification through the lens, see
+    /// [`LabelParams::dot_size_ratio`]), narrowed by 2 px at the bottom and widened by 2 px
+    /// and the motion blur at the top: longer than a whole dot with its antialiased rim
+    /// can look (a dot's sliver, a dot seen obliquely, a small dot blurred are not worn
+    /// dots), up to a smear 2.5 times the dot. Default 1.2 to 2.5.
+    pub worn_dot_size_ratio: (f64, f64),
+    /// A worn dot's minor axis (its major axis times its roundness) at least this share of
+    /// the smallest diameter a dot has there, foreshortened as in
+    /// [`LabelParams::min_roundness_ratio`] (a smear `s` times the dot's length is
+    /// `1/√s` as wide: 0.67 at 2.2; a hair or a crease is far thinner). Default 0.5.
+    pub worn_dot_min_width_ratio: f64,
+    /// How far a worn dot's centre may be from where the neighbours put the marker, as a
+    /// share of the dot's largest diameter there, plus 1 px for the error of that position
+    /// (median 0.5 px for the smeared dots of the `cluttered` preset; a dot merged with a
+    /// mole of its own size is off by a third of a dot). Default 0.125 (the detector's
+    /// tolerance for two blobs to be concentric).
+    pub worn_dot_centre_tolerance: f64,
     /// Acquisition: at most this many detections per image take part, the best by
     /// quality (bounds the time of an attempt on skin with hundreds of blobs). Default
     /// 400.
@@ -248,6 +280,10 @@ impl Default for LabelParams {
             min_roundness_ratio: 0.7,
             normal_slack_deg: 25.0,
             first_sighting_min_fill: 0.6,
+            worn_dots: true,
+            worn_dot_size_ratio: (1.2, 2.5),
+            worn_dot_min_width_ratio: 0.5,
+            worn_dot_centre_tolerance: 0.125,
             acquire_max_detections: 400,
             acquire_iterations_per_frame: 150,
             acquire_hypotheses_per_frame: 12_000,
@@ -343,6 +379,7 @@ impl LabelParams {
         for (name, (lo, hi)) in [
             ("dot_size_ratio", self.dot_size_ratio),
             ("first_sighting_size_ratio", self.first_sighting_size_ratio),
+            ("worn_dot_size_ratio", self.worn_dot_size_ratio),
         ] {
             if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi) {
                 return Err(err(name, "must be 0 <= low < high"));
@@ -353,6 +390,12 @@ impl LabelParams {
         }
         if !(0.0..=1.0).contains(&self.first_sighting_min_fill) {
             return Err(err("first_sighting_min_fill", "must be in [0, 1]"));
+        }
+        if !(0.0..=1.0).contains(&self.worn_dot_min_width_ratio) {
+            return Err(err("worn_dot_min_width_ratio", "must be in [0, 1]"));
+        }
+        if !(0.0..=1.0).contains(&self.worn_dot_centre_tolerance) {
+            return Err(err("worn_dot_centre_tolerance", "must be in [0, 1]"));
         }
         if !(0.0..=90.0).contains(&self.normal_slack_deg) {
             return Err(err("normal_slack_deg", "must be in [0, 90] degrees"));
@@ -438,6 +481,8 @@ struct Track {
     /// Frames since the marker was last labeled (0: labeled in the last frame); None
     /// when never labeled since the last acquisition.
     frames_since_seen: Option<usize>,
+    /// The marker's last label was a worn dot ([`LabelParams::worn_dots`]).
+    worn: bool,
 }
 
 /// Tracks and labels markers frame by frame (see the module docs).
@@ -486,11 +531,14 @@ pub struct Labeler {
     normals: Vec<Vector3<f64>>,
 }
 
+/// A point's pixels in cam0 and cam1 (None: behind the camera or outside its image).
+type StereoPixels = [Option<Point2<f64>>; 2];
+
 /// A marker's prediction for one labeling pass.
 #[derive(Debug, Clone, Copy)]
 struct Prediction {
     point: Point3<f64>,
-    pixels: [Option<Point2<f64>>; 2],
+    pixels: StereoPixels,
     gate_px: f64,
     gate_mm: f64,
     /// Image motion since the last frame in each camera, pixels: a dot moving this much
@@ -504,6 +552,13 @@ struct Prediction {
     first_sighting: bool,
     /// The skin's normal at the marker (cam0 frame), when known.
     normal: Option<Vector3<f64>>,
+    /// Where the marker's neighbours put it (cam0 frame, see
+    /// [`LabelParams::worn_dots`]) and its pixels; None without two neighbours labeled in
+    /// the last frame, or with worn dots off.
+    vouched: Option<(Point3<f64>, StereoPixels)>,
+    /// A worn dot may be taken for the marker: worn dots are on and the marker was not
+    /// labeled in the last frame, or was on a worn dot.
+    may_be_worn: bool,
 }
 
 /// What the labeler reads of a detection's shape.
@@ -542,6 +597,8 @@ struct Label {
     bundle: Bundle,
     /// Assigned without a rival in either camera (its residual feeds the gate estimate).
     confident: bool,
+    /// On a worn dot ([`LabelParams::worn_dots`]).
+    worn: bool,
 }
 
 /// Result of one labeling pass.
@@ -837,6 +894,7 @@ impl Labeler {
                 Vector3::zeros()
             };
             track.head = head;
+            track.worn = l.worn;
             seen[l.marker] = true;
             stats.labeled += 1;
             stats.reacquired += usize::from(reacquired);
@@ -917,11 +975,26 @@ impl Labeler {
                 let Some(largest_dot) = self.largest_dot_px(&pr.point, c, hi) else {
                     continue;
                 };
-                let g = pr.gate_px + 0.5 * (largest_dot + pr.motion_px[c]) + p.window_margin_px;
+                let mut g = pr.gate_px + 0.5 * (largest_dot + pr.motion_px[c]);
+                let mut r = pr.gate_px + p.pose_pass_extra_gate_px;
+                // A worn dot: its centre within the tolerance of where the neighbours put
+                // the marker, its length up to the top of its size range.
+                if let Some((point, Some(at))) = pr.vouched.map(|(point, px)| (point, px[c]))
+                    && pr.may_be_worn
+                {
+                    let off = (at - q).norm();
+                    if let (Some(worn), Some(tolerance)) = (
+                        self.largest_dot_px(&point, c, p.worn_dot_size_ratio.1),
+                        self.worn_dot_tolerance_px(&point, c),
+                    ) {
+                        g = g.max(off + tolerance + 0.5 * (worn + pr.motion_px[c]));
+                        r = r.max(off + tolerance);
+                    }
+                }
+                let g = g + p.window_margin_px;
                 let Some(window) = pixel_rect((q.x - g, q.y - g, q.x + g, q.y + g), w, h) else {
                     continue;
                 };
-                let r = pr.gate_px + p.pose_pass_extra_gate_px;
                 let centre = pixel_rect((q.x - r, q.y - r, q.x + r, q.y + r), w, h)
                     .unwrap_or((window.0, window.1, window.0, window.1));
                 windows.push(window);
@@ -973,6 +1046,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             head: *q,
             velocity: Vector3::zeros(),
             frames_since_seen: None,
+            worn: false,
         })
         .collect()
 }

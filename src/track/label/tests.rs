@@ -789,3 +789,84 @@ fn a_crease_where_a_marker_comes_back_is_not_taken_for_it() {
         "without the rule the creases are not taken: the test shows nothing"
     );
 }
+
+#[test]
+fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
+    // Some dots are smeared for the whole take: a blob twice a dot's length, roundness
+    // 0.3, filling its ellipse, centred on the dot (no whole dot to acquire or track them
+    // by). Others are merged with a mole as dark as the ink: the same kind of blob, but
+    // its centre a third of a dot off the marker's, toward the mole. Where the neighbours
+    // put the marker, the smears are labeled and the merged blobs are not.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(9);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let cam1_from_head = cam1_from_head(&rig, &pose);
+    let worn = [4, 12, 26, 38, 55];
+    let merged = [7, 19, 33, 50, 71];
+    let run = |worn_dots: bool| -> (usize, usize, usize) {
+        let mut lab = Labeler::new(
+            rig.clone(),
+            &layout,
+            pts.clone(),
+            LabelParams {
+                worn_dots,
+                ..LabelParams::default()
+            },
+        )
+        .unwrap();
+        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut rng = Rng::new(109);
+        let (mut worn_labeled, mut worn_seen, mut merged_labeled) = (0, 0, 0);
+        for f in 0..30usize {
+            let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+            for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
+                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+                for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
+                    let Some(k) = *truth else { continue };
+                    let shift = if worn.contains(&k) {
+                        0.0
+                    } else if merged.contains(&k) {
+                        0.8
+                    } else {
+                        continue;
+                    };
+                    let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
+                    let at = cam_from_head * (pts[k] + side * shift);
+                    let dot_px = d.diameter_px;
+                    d.centre_px = cam.project(&at.coords).unwrap();
+                    d.diameter_px = 2.0 * dot_px;
+                    d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
+                    d.area_px = (0.95
+                        * std::f64::consts::FRAC_PI_4
+                        * d.diameter_px
+                        * d.diameter_px
+                        * d.roundness) as usize;
+                }
+            }
+            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+            let truth = [obs[0].1.clone(), obs[1].1.clone()];
+            let (_, wrong) = count(&out, &truth);
+            assert_eq!(wrong, 0, "frame {f}");
+            if f < 2 {
+                continue;
+            }
+            let in_both = |k: usize| truth[0].contains(&Some(k)) && truth[1].contains(&Some(k));
+            for &k in worn.iter().filter(|&&k| in_both(k)) {
+                worn_seen += 1;
+                worn_labeled += usize::from(out.markers[k].is_some());
+            }
+            merged_labeled += merged.iter().filter(|&&k| out.markers[k].is_some()).count();
+        }
+        (worn_labeled, worn_seen, merged_labeled)
+    };
+    let (labeled, seen, merged_labeled) = run(true);
+    assert!(
+        seen >= 3 * 28,
+        "only {seen} worn dots in view: the test shows little"
+    );
+    assert_eq!(labeled, seen, "worn dots labeled");
+    assert_eq!(merged_labeled, 0, "dots merged with moles labeled");
+    // Without the rule the smears are never taken: the shape rules refuse them.
+    let (labeled, _, merged_labeled) = run(false);
+    assert_eq!((labeled, merged_labeled), (0, 0));
+}

@@ -107,6 +107,64 @@ impl Labeler {
         })
     }
 
+    /// How far, pixels, a worn dot's centre may be in camera `c` from where the marker's
+    /// neighbours put it at `point` (cam0 frame): 1 px and
+    /// [`super::LabelParams::worn_dot_centre_tolerance`] of the dot's largest diameter
+    /// there. None when the point does not project.
+    pub(super) fn worn_dot_tolerance_px(&self, point: &Point3<f64>, c: usize) -> Option<f64> {
+        let tolerance = self.params.worn_dot_centre_tolerance;
+        self.largest_dot_px(point, c, 1.0)
+            .map(|dot| 1.0 + tolerance * (dot - 2.0))
+    }
+
+    /// Whether detections `det` (cam0, cam1) at pixels `x` are a worn dot of the marker
+    /// predicted by `pr` ([`super::LabelParams::worn_dots`]): in both cameras, the blob's
+    /// major axis within [`super::LabelParams::worn_dot_size_ratio`] of a dot's where the
+    /// neighbours put the marker (as in [`Labeler::dot_sized`]), its minor axis at least
+    /// [`super::LabelParams::worn_dot_min_width_ratio`] of the dot's smallest diameter
+    /// there foreshortened as in [`Labeler::round_enough`], and its centre within
+    /// [`Labeler::worn_dot_tolerance_px`] of the neighbours' pixel.
+    pub(super) fn worn_dot(&self, pr: &Prediction, det: [usize; 2], x: [Point2<f64>; 2]) -> bool {
+        let p = &self.params;
+        let Some((point, pixels)) = pr.vouched.filter(|_| pr.may_be_worn) else {
+            return false;
+        };
+        let in_cam1 = self.rig.cam1_from_cam0 * point;
+        let normal = pr.normal.map(|n| [n, self.rig.cam1_from_cam0.rotation * n]);
+        let cams = [
+            (&self.rig.cam0, point.coords),
+            (&self.rig.cam1, in_cam1.coords),
+        ];
+        let d = p.dot_diameter_mm;
+        let (lo, hi) = p.worn_dot_size_ratio;
+        (0..2).all(|c| {
+            let (Some(blob), Some(at)) = (self.blobs[c].get(det[c]), pixels[c]) else {
+                return false;
+            };
+            if !(blob.diameter_px.is_finite() && blob.roundness.is_finite()) {
+                return false;
+            }
+            let (cam, q) = &cams[c];
+            let Some((_, j)) = cam.project_with_jacobian(q) else {
+                return false;
+            };
+            let (s1, s2) = singular_values(&j);
+            let cos = normal.map_or(1.0, |n| {
+                let n = n[c];
+                let c = (n.dot(q) / (n.norm() * q.norm())).abs().min(1.0);
+                let angle = c.acos() + p.normal_slack_deg.to_radians();
+                angle.min(std::f64::consts::FRAC_PI_2).cos()
+            });
+            let major = blob.diameter_px;
+            let minor = major * blob.roundness;
+            let tolerance = 1.0 + p.worn_dot_centre_tolerance * d * s1;
+            major >= lo * d * s1 + 2.0
+                && major <= hi * d * s1 + 2.0 + pr.motion_px[c]
+                && minor >= p.worn_dot_min_width_ratio * d * s2 * cos
+                && (x[c] - at).norm() <= tolerance
+        })
+    }
+
     /// The major axis, pixels, of the largest blob a dot at `point` (cam0 frame) may make
     /// in camera `c` at the size ratio `hi` (its largest magnification through the lens,
     /// as in [`Labeler::dot_sized`]); None when the point does not project.
@@ -150,11 +208,12 @@ impl Labeler {
             .enumerate()
             .map(|(i, t)| {
                 let motion = t.velocity * (p.velocity_damping * steps as f64);
-                let head = if t.frames_since_seen == Some(0) {
-                    t.head
+                let neighbours_head = if t.frames_since_seen == Some(0) {
+                    None
                 } else {
-                    self.head_from_neighbours(i).unwrap_or(t.head)
+                    self.head_from_neighbours(i)
                 };
+                let head = neighbours_head.unwrap_or(t.head);
                 let point = pose * (head + motion);
                 let pixels = self.project_both(&point);
                 let depth = point.coords.norm().max(1.0);
@@ -173,18 +232,33 @@ impl Labeler {
                     (Some(a), Some(b)) => (b - a).norm(),
                     _ => 0.0,
                 });
+                let first_sighting = t.frames_since_seen != Some(0);
+                let may_be_worn = p.worn_dots && (first_sighting || t.worn);
+                let vouched = if !may_be_worn {
+                    None
+                } else if first_sighting {
+                    // The prediction is the neighbours' already (no motion carried).
+                    neighbours_head.map(|_| (point, pixels))
+                } else {
+                    self.head_from_neighbours(i).map(|h| {
+                        let point = pose * h;
+                        (point, self.project_both(&point))
+                    })
+                };
                 Prediction {
                     point,
                     pixels,
                     gate_px,
                     gate_mm,
                     motion_px,
-                    first_sighting: t.frames_since_seen != Some(0),
+                    first_sighting,
                     normal: self
                         .normals
                         .get(i)
                         .filter(|n| n.norm() > 0.0)
                         .map(|n| pose.rotation * n),
+                    vouched,
+                    may_be_worn,
                 }
             })
             .collect()
@@ -334,13 +408,16 @@ impl Labeler {
             max_reprojection_px: self.gate.gate_px(),
             ..p.pair.triangulate.clone()
         };
-        let check = |i: usize, a: usize, b: usize| -> Option<Bundle> {
+        let check = |i: usize, a: usize, b: usize| -> Option<(Bundle, bool)> {
             let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
                 return None;
             };
             let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
-            ((bundle.point_in_cam0 - preds[i].point).norm() <= preds[i].gate_mm
-                && self.dot_sized(
+            if (bundle.point_in_cam0 - preds[i].point).norm() > preds[i].gate_mm {
+                return None;
+            }
+            let dot =
+                self.dot_sized(
                     &bundle.point_in_cam0,
                     [a, b],
                     preds[i].motion_px,
@@ -349,10 +426,14 @@ impl Labeler {
                     } else {
                         p.dot_size_ratio
                     },
-                )
-                && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b])
-                && (!preds[i].first_sighting || self.filled_like_a_dot([a, b])))
-            .then_some(bundle)
+                ) && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b])
+                    && (!preds[i].first_sighting || self.filled_like_a_dot([a, b]));
+            if dot {
+                Some((bundle, false))
+            } else {
+                self.worn_dot(&preds[i], [a, b], [x0, x1])
+                    .then_some((bundle, true))
+            }
         };
         let mut labels = Vec::new();
         let mut used: [Vec<bool>; 2] = [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
@@ -366,7 +447,7 @@ impl Labeler {
             paired += 1;
             match (assigned[0][i], assigned[1][i]) {
                 (Some((a, false)), Some((b, false))) => match check(i, a, b) {
-                    Some(bundle) => {
+                    Some((bundle, worn)) => {
                         used[0][a] = true;
                         used[1][b] = true;
                         labels.push(Label {
@@ -374,6 +455,7 @@ impl Labeler {
                             det: [a, b],
                             bundle,
                             confident: true,
+                            worn,
                         });
                     }
                     None => rejected += 1,
@@ -395,13 +477,14 @@ impl Labeler {
                     if used[1][b] {
                         continue;
                     }
-                    if let Some(bundle) = check(i, a, b) {
+                    if let Some((bundle, worn)) = check(i, a, b) {
                         count += 1;
                         found = Some(Label {
                             marker: i,
                             det: [a, b],
                             bundle,
                             confident: false,
+                            worn,
                         });
                     }
                 }
