@@ -94,6 +94,20 @@ pub fn pair_detections(
     pixels1: &[Point2<f64>],
     params: &PairParams,
 ) -> Vec<StereoMatch> {
+    pair_detections_where(rig, pixels0, pixels1, params, |_, _, _| true)
+}
+
+/// [`pair_detections`] among the pairs `(i, j, bundle)` that `keep` accepts: the others
+/// are neither paired nor anyone's competitor (blobs that could not be one dot seen from
+/// both cameras, such as a freckle on the epipolar line of a painted dot, do not make its
+/// pairing ambiguous).
+pub fn pair_detections_where(
+    rig: &StereoRig,
+    pixels0: &[Point2<f64>],
+    pixels1: &[Point2<f64>],
+    params: &PairParams,
+    keep: impl Fn(usize, usize, &Bundle) -> bool,
+) -> Vec<StereoMatch> {
     let (n0, n1) = (pixels0.len(), pixels1.len());
     if n0 == 0 || n1 == 0 {
         return Vec::new();
@@ -132,7 +146,9 @@ pub fn pair_detections(
             if m.z < zmin || m.z > zmax || d * f / m.z > 3.0 * gate {
                 continue;
             }
-            if let Ok(b) = triangulate(rig, &pixels0[i], &pixels1[j], &params.triangulate) {
+            if let Ok(b) = triangulate(rig, &pixels0[i], &pixels1[j], &params.triangulate)
+                && keep(i, j, &b)
+            {
                 rows[i].push((j, b.reprojection_px));
                 bundles[i].push(b);
                 col_costs[j].push(b.reprojection_px);
@@ -203,5 +219,49 @@ mod tests {
             assert_eq!(s.index1, pts.len() - 1 - s.index0, "wrong pair");
             assert!((s.bundle.point_in_cam0 - pts[s.index0]).norm() < 1e-6);
         }
+    }
+
+    #[test]
+    fn blobs_left_out_of_pairing_make_no_pair_ambiguous() {
+        // Dots on a surface, and in cam1 beside each dot a freckle on its epipolar line
+        // (the dot's ray 4 mm deeper): every dot has a rival as cheap as itself. Told that
+        // a freckle cannot pair (it is not the size of a dot at that depth), the pairing
+        // keeps every dot; without that, the rivals drop them.
+        let rig = crate::camera::default_helmet_rig().unwrap();
+        let mut pts = Vec::new();
+        for a in -3..=3 {
+            for b in -3..=3 {
+                // Sheared, so that no two dots share a (vertical) epipolar line.
+                let (x, y) = (
+                    f64::from(a) * 15.0 + f64::from(b) * 2.1,
+                    35.0 + f64::from(b) * 15.0,
+                );
+                pts.push(Point3::new(x, y, 230.0 + 0.004 * (x * x + y * y)));
+            }
+        }
+        let n = pts.len();
+        let to_cam1 = |p: &Point3<f64>| rig.cam1.project(&(rig.cam1_from_cam0 * p).coords);
+        let px0: Vec<_> = pts
+            .iter()
+            .map(|p| rig.cam0.project(&p.coords).unwrap())
+            .collect();
+        let mut px1: Vec<_> = pts.iter().map(|p| to_cam1(p).unwrap()).collect();
+        let params = PairParams::default();
+        let alone = pair_detections(&rig, &px0, &px1, &params);
+        assert!(alone.len() >= n - 3, "{} of {n}", alone.len());
+        px1.extend(
+            pts.iter()
+                .map(|p| to_cam1(&(p * (1.0 + 4.0 / p.coords.norm()))).unwrap()),
+        );
+        let all = pair_detections(&rig, &px0, &px1, &params);
+        assert!(
+            all.len() < n / 2,
+            "{} of {n} kept beside their rivals",
+            all.len()
+        );
+        let dots = pair_detections_where(&rig, &px0, &px1, &params, |_, j, _| j < n);
+        let pairs = |m: &[StereoMatch]| m.iter().map(|s| (s.index0, s.index1)).collect::<Vec<_>>();
+        assert_eq!(pairs(&dots), pairs(&alone));
+        assert!(dots.iter().all(|s| s.index0 == s.index1));
     }
 }

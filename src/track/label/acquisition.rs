@@ -12,7 +12,7 @@ use super::{LabelStats, Labeler, PassResult};
 const TEMPLATE_MARGIN: f64 = 1.1;
 use crate::align::horn_alignment;
 use crate::numeric::NearestPoints;
-use crate::stereo::pair_detections;
+use crate::stereo::pair_detections_where;
 
 impl Labeler {
     /// Acquisition by registration (module docs). Returns the pose and the labels of a
@@ -44,20 +44,25 @@ impl Labeler {
                 .filter_map(|&a| pixels[c][a])
                 .collect::<Vec<_>>()
         });
-        let matches = pair_detections(&self.rig, &px[0], &px[1], &self.params.pair);
-        // Pairs of blobs that are not the size of a dot at their depth are skin, not ink.
-        let points: Vec<Point3<f64>> = matches
-            .iter()
-            .filter(|s| {
+        // Pairs of blobs that are not the size of a dot at their depth, or do not fill
+        // their ellipses as a dot does, are skin, not ink: they are not paired, and do not
+        // make a dot's pairing ambiguous.
+        let matches = pair_detections_where(
+            &self.rig,
+            &px[0],
+            &px[1],
+            &self.params.pair,
+            |i, j, bundle| {
+                let det = [chosen[0][i], chosen[1][j]];
                 self.dot_sized(
-                    &s.bundle.point_in_cam0,
-                    [chosen[0][s.index0], chosen[1][s.index1]],
+                    &bundle.point_in_cam0,
+                    det,
                     [0.0; 2],
                     self.params.first_sighting_size_ratio,
-                )
-            })
-            .map(|s| s.bundle.point_in_cam0)
-            .collect();
+                ) && self.filled_like_a_dot(det)
+            },
+        );
+        let points: Vec<Point3<f64>> = matches.iter().map(|s| s.bundle.point_in_cam0).collect();
         stats.paired = points.len();
         let p = &self.params;
         if points.len() < p.acquire_min_markers {
@@ -70,8 +75,20 @@ impl Labeler {
         // Label with the tracking pass around the registered neutral (or expression).
         let preds = self.predictions(&pose, 1, 0.0);
         let pass = self.label_pass(&preds, pixels);
+        let in_view = self.in_view(&preds);
+        let needed = (p.acquire_min_inlier_fraction * in_view as f64)
+            .ceil()
+            .max(p.acquire_min_markers as f64) as usize;
+        tracing::debug!(
+            labels = pass.labels.len(),
+            in_view,
+            "labels under the registration"
+        );
+        if pass.labels.len() < needed {
+            return None;
+        }
         let (pose, rms) = self.estimate_pose(&pass.labels)?;
-        if rms > p.max_pose_rms_mm || pass.labels.len() < p.acquire_min_markers {
+        if rms > p.max_pose_rms_mm {
             return None;
         }
         // Second pass under the refined pose.
@@ -81,6 +98,22 @@ impl Labeler {
             return None;
         }
         Some((pose, pass))
+    }
+
+    /// How many markers `preds` put in view of both cameras: inside both images, and
+    /// with the skin's normal (when known) facing both.
+    fn in_view(&self, preds: &[super::Prediction]) -> usize {
+        let cam1_centre = self.rig.cam1_from_cam0.inverse() * Point3::origin();
+        preds
+            .iter()
+            .filter(|pr| {
+                pr.pixels.iter().all(Option::is_some)
+                    && pr.normal.is_none_or(|n| {
+                        n.dot(&(Point3::origin() - pr.point)) > 0.0
+                            && n.dot(&(cam1_centre - pr.point)) > 0.0
+                    })
+            })
+            .count()
     }
 
     /// RANSAC registration of unlabeled triangulated points to the neutral markers:
@@ -203,13 +236,11 @@ impl Labeler {
             .filter(|(_, _, t)| !self.same_hypothesis(t, &best))
             .map(|x| x.0)
             .fold(0.0, f64::max);
-        // Of the points, at most one per marker can match: clutter on the skin does not
-        // count against a registration.
-        let needed = (p.acquire_min_inlier_fraction * n.min(m) as f64)
-            .ceil()
-            .max(p.acquire_min_markers as f64) as usize;
+        // How many of the points match is no measure of a registration on skin with
+        // clutter (most pairs may be freckles and moles): the labeling pass under the pose
+        // is (see `acquire`).
         tracing::debug!(best_score, rival, inliers, n, "registration");
-        if inliers < needed || rival >= p.acquire_ambiguity_ratio * best_score {
+        if inliers < p.acquire_min_markers || rival >= p.acquire_ambiguity_ratio * best_score {
             if search.iterations < p.acquire_iterations {
                 // Not decided yet: go on next frame from these hypotheses.
                 search.top = top;

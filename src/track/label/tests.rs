@@ -256,6 +256,50 @@ fn acquires_under_arbitrary_head_poses() {
 }
 
 #[test]
+fn acquires_with_a_freckle_on_every_dots_epipolar_line() {
+    // Beside every dot in cam1, a freckle on the dot's epipolar line (its ray 4 mm deeper,
+    // a third of a dot across): as cheap a stereo pair as the dot's own. A freckle is not
+    // the size of a dot at the depth it would pair at, so it makes no dot's pairing
+    // ambiguous, and the first frame is labeled.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(3);
+    let mut rng = Rng::new(12);
+    let pose = pose_facing(&rig, 230.0, Vector3::new(0.1, -0.2, 0.05), Vector3::zeros());
+    let cam1_from_head = cam1_from_head(&rig, &pose);
+    let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+    let dots: Vec<usize> = obs[1].1.iter().flatten().copied().collect();
+    for k in dots {
+        let at = cam1_from_head * pts[k];
+        let deeper = at.coords * (1.0 + 4.0 / at.coords.norm());
+        let Some(px) = rig.cam1.project(&deeper) else {
+            continue;
+        };
+        let dot_px = rig.cam1.fx() * 2.4 / at.coords.norm() + 1.0;
+        let diameter = dot_px / 3.0;
+        obs[1].0.push(Detection {
+            centre_px: px,
+            area_px: (std::f64::consts::FRAC_PI_4 * diameter * diameter) as usize,
+            roundness: 0.9,
+            contrast_dn: 60.0,
+            quality: 0.5,
+            diameter_px: diameter,
+        });
+        obs[1].1.push(None);
+    }
+    let truth = [obs[0].1.clone(), obs[1].1.clone()];
+    let mut lab = labeler(&layout, &pts);
+    let out = lab.process(FrameIndex::new(0), [&obs[0].0, &obs[1].0]);
+    let (ok, wrong) = count(&out, &truth);
+    let vis = visible_both(&truth);
+    assert_eq!(wrong, 0);
+    assert!(
+        ok as f64 >= 0.95 * vis as f64,
+        "{ok} of {vis} labeled ({:?})",
+        out.stats
+    );
+}
+
+#[test]
 fn no_acquisition_without_a_face() {
     let (layout, pts) = face(3);
     let mut lab = labeler(&layout, &pts);
