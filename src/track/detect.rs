@@ -22,6 +22,10 @@
 //!    whose box is mostly skin, it is a plane fitted to the ring, since shading across the
 //!    box would otherwise pull the centre towards its darker side (by 1–2.5 px on the
 //!    `wide-mixed` preset).
+//! 6. A dot cut by the image's edge has its centroid pulled inwards (a dot cut in half by
+//!    0.42 radii, 3-4 px on a face-filling rig): a blob whose pull, told by its distance
+//!    from the edge and its diameter, exceeds [`DetectParams::max_edge_bias_px`] is
+//!    rejected.
 
 use nalgebra::Point2;
 
@@ -83,6 +87,13 @@ pub struct DetectParams {
     /// Default 40.
     #[serde(skip_serializing)]
     pub max_dot_px: f64,
+    /// Largest pull of a blob's centre by the image's edge, pixels: a dot cut by the edge
+    /// has the centroid of its visible part pulled inwards, by an amount its distance from
+    /// the edge and its diameter tell (see [`edge_cut_bias_px`]); a blob pulled more is
+    /// rejected (a dot cut in half is pulled 0.42 radii, 3-4 px on a face-filling rig).
+    /// Default 0.5: a few times the centroid noise of a whole dot, and what a dot of 7 px
+    /// (15 px) keeps with up to 2 % (9 %) of its area cut off.
+    pub max_edge_bias_px: f64,
     /// Region of interest `(x0, y0, x1, y1)`, pixels, end exclusive (None: whole image).
     pub roi: Option<(u32, u32, u32, u32)>,
 }
@@ -104,6 +115,7 @@ impl Default for DetectParams {
             elongated_min_contrast_factor: 1.5,
             min_dot_px: 3.0,
             max_dot_px: 40.0,
+            max_edge_bias_px: 0.5,
             roi: None,
         }
     }
@@ -183,6 +195,7 @@ impl DetectParams {
             self.elongated_min_contrast_factor,
             "elongated_min_contrast_factor",
         )?;
+        param_error::non_negative(self.max_edge_bias_px, "max_edge_bias_px")?;
         if !(self.min_dot_px.is_finite() && self.min_dot_px >= 0.0) {
             return Err(ParamError::new(
                 "min_dot_px",
@@ -236,6 +249,9 @@ pub enum RejectReason {
     NotRound,
     /// Too faint against the background around it.
     LowContrast,
+    /// Cut by the image's edge: the centroid of the part in the image is pulled inwards
+    /// by more than [`DetectParams::max_edge_bias_px`].
+    AtImageEdge,
 }
 
 impl RejectReason {
@@ -245,6 +261,7 @@ impl RejectReason {
             RejectReason::TooLarge => "too_large",
             RejectReason::NotRound => "not_round",
             RejectReason::LowContrast => "low_contrast",
+            RejectReason::AtImageEdge => "at_image_edge",
         }
     }
 }
@@ -1018,7 +1035,10 @@ fn split_and_measure(
     }
     let found_before = out.len();
     let next = (threshold as f64 * 1.6).ceil() as u32 + 1;
-    if depth < 4 && next <= 255 {
+    // A dot cut by the image's edge stays cut at any threshold, but its core at a higher
+    // one is smaller and measures a smaller pull: it is not split.
+    let cut_by_edge = reason == RejectReason::AtImageEdge;
+    if depth < 4 && next <= 255 && !cut_by_edge {
         split_at(
             image,
             pixels,
@@ -1035,6 +1055,7 @@ fn split_and_measure(
     if depth == 0
         && out.len() == found_before
         && reason != RejectReason::LowContrast
+        && !cut_by_edge
         && HAIR_FREE_MIN_SHARE.sqrt() * HAIR_FREE_MIN_WIDTH_PX
             <= 4.0 * second_moments(pixels).1.max(0.0).sqrt()
         && let Some(core) = hair_free_core(image, pixels, params, 0.0)
@@ -1411,15 +1432,55 @@ fn measure_blob(
     if sw <= 0.0 {
         return Err(RejectReason::LowContrast);
     }
+    let (centre, diameter) = (Point2::new(swx / sw, swy / sw), 4.0 * l1.sqrt());
+    // A dot cut by the image's edge: its centroid is pulled inwards.
+    let room = (centre.x + 0.5)
+        .min(centre.y + 0.5)
+        .min(w as f64 - 0.5 - centre.x)
+        .min(h as f64 - 0.5 - centre.y);
+    if edge_cut_bias_px(room, 0.5 * diameter) > params.max_edge_bias_px {
+        return Err(RejectReason::AtImageEdge);
+    }
     let quality = roundness * (peak / (peak + 40.0));
     Ok(Detection {
-        centre_px: Point2::new(swx / sw, swy / sw),
+        centre_px: centre,
         area_px: pixels.len(),
         roundness,
         contrast_dn: peak,
         quality: quality.clamp(0.0, 1.0),
-        diameter_px: 4.0 * l1.sqrt(),
+        diameter_px: diameter,
     })
+}
+
+/// How far the image's edge pulls the centroid of a dot of radius `r` whose blob's centroid
+/// is `room` pixels from the edge, pixels (0 when the dot is whole, `room ≥ r`).
+///
+/// A disc whose centre is `a·r` from the edge (`−1 < a < 1`) loses the cap beyond it, of
+/// area `r²(acos a − a√(1−a²))` and first moment `⅔r³(1−a²)^{3/2}` about the centre: the
+/// visible part's centroid is `s(a)·r` further in, `s(a) = ⅔(1−a²)^{3/2} / (π − acos a +
+/// a√(1−a²))`, at `room = (a + s(a))·r`, which grows with `a` (bisection). The blob's
+/// measured radius is the true one while the centre is inside (`a ≥ 0`: a cut leaves the
+/// chord through the centre whole); deeper cuts shorten it, which still gives a pull far
+/// above any tolerance.
+pub fn edge_cut_bias_px(room: f64, r: f64) -> f64 {
+    if r.is_nan() || r <= 0.0 || room.is_nan() || room >= r {
+        return 0.0;
+    }
+    let pull = |a: f64| {
+        let c = (1.0 - a * a).max(0.0);
+        2.0 / 3.0 * c.powf(1.5) / (std::f64::consts::PI - a.acos() + a * c.sqrt())
+    };
+    let q = room / r;
+    let (mut lo, mut hi) = (-1.0f64, 1.0f64);
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if mid + pull(mid) < q {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    pull(0.5 * (lo + hi)) * r
 }
 
 /// The background around a blob as a plane `B(x, y) = a + b·(x − x̄) + c·(y − ȳ)`, fitted by
@@ -1773,6 +1834,71 @@ mod tests {
             ..Default::default()
         };
         assert!(detect_markers(&img, &strict).is_empty());
+    }
+
+    #[test]
+    fn the_edge_pull_of_a_cut_disc_matches_its_visible_centroid() {
+        // Centroid of a disc of radius 10 centred `d` from the edge (x = d is the edge),
+        // from a fine grid over the visible part.
+        for d in [-5.0, -2.0, 0.0, 3.0, 6.0, 8.0, 9.5] {
+            let (mut n, mut sx) = (0.0, 0.0);
+            for i in 0..2000 {
+                for j in 0..2000 {
+                    let (x, y) = (
+                        -10.0 + 0.01 * (f64::from(i) + 0.5),
+                        -10.0 + 0.01 * (f64::from(j) + 0.5),
+                    );
+                    if x * x + y * y <= 100.0 && x <= d {
+                        n += 1.0;
+                        sx += x;
+                    }
+                }
+            }
+            let pull = -sx / n;
+            let room = d - (sx / n);
+            let est = edge_cut_bias_px(room, 10.0);
+            assert!(
+                (est - pull).abs() < 0.01,
+                "d {d}: pull {pull:.4}, estimated {est:.4}"
+            );
+        }
+        assert_eq!(edge_cut_bias_px(10.0, 10.0), 0.0);
+        assert_eq!(edge_cut_bias_px(3.0, 0.0), 0.0);
+    }
+
+    #[test]
+    fn a_dot_cut_by_the_image_edge_is_not_a_dot() {
+        // Discs of radius 4 px cut by each of the four edges, half or more outside or (the
+        // last) half the radius in: its visible part's centroid is pulled 0.68 px.
+        let cut = [
+            (100.0, 199.0),
+            (319.0, 60.0),
+            (0.0, 120.0),
+            (200.0, 0.5),
+            (40.0, 197.5),
+        ];
+        // A whole disc 7 px from the bottom edge, and one cut by a pixel, whose centroid
+        // is pulled about 0.3 px.
+        let kept = [(160.0, 193.0), (250.0, 196.5)];
+        let discs: Vec<_> = cut
+            .iter()
+            .chain(&kept)
+            .map(|&(x, y)| (x, y, 4.0, 80.0))
+            .collect();
+        let img = image_with_discs(&discs);
+        let (mut found, rejected) =
+            MarkerDetector::default().detect_with_rejects(&img, &DetectParams::default());
+        found.sort_by(|a, b| a.centre_px.x.total_cmp(&b.centre_px.x));
+        assert_eq!(found.len(), kept.len(), "{found:?}");
+        for (d, &(x, y)) in found.iter().zip(&kept) {
+            let err = (d.centre_px - Point2::new(x, y)).norm();
+            assert!(err < 0.5, "disc at ({x}, {y}) off by {err:.3} px: {d:?}");
+        }
+        let at_edge = rejected
+            .iter()
+            .filter(|r| r.reason == RejectReason::AtImageEdge)
+            .count();
+        assert_eq!(at_edge, cut.len(), "{rejected:?}");
     }
 
     #[test]
