@@ -92,7 +92,8 @@ pub struct DetectParams {
     /// the edge and its diameter tell (see [`edge_cut_bias_px`]); a blob pulled more is
     /// rejected (a dot cut in half is pulled 0.42 radii, 3-4 px on a face-filling rig).
     /// Default 0.5: a few times the centroid noise of a whole dot, and what a dot of 7 px
-    /// (15 px) keeps with up to 2 % (9 %) of its area cut off.
+    /// (15 px) across keeps with up to 16 % (7 %) of its area, 1.5 px (1.9 px) of its
+    /// diameter, cut off.
     pub max_edge_bias_px: f64,
     /// Region of interest `(x0, y0, x1, y1)`, pixels, end exclusive (None: whole image).
     pub roi: Option<(u32, u32, u32, u32)>,
