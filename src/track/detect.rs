@@ -847,17 +847,12 @@ impl MarkerDetector {
                         }
                     }
                     if hit != 0 {
-                        // Candidates are sparse: skip zero runs 8 pixels at a time.
-                        for k in (i0..i1).step_by(8) {
-                            let ke = (k + 8).min(i1);
-                            if all_zero(&mask_row[k - x0..ke - x0]) {
-                                continue;
-                            }
-                            for x in k..ke {
-                                if mask_row[x - x0] != 0 {
-                                    mask_row[x - x0] = level(x, img_row[x - x0]);
-                                }
-                            }
+                        // Candidates are sparse: found a word at a time.
+                        let line = &mut mask_row[i0 - x0..i1 - x0];
+                        let mut k = 0;
+                        while let Some(i) = next_candidate(line, k) {
+                            line[i] = level(i0 + i, img_row[i0 + i - x0]);
+                            k = i + 1;
                         }
                     }
                     any |= hit;
@@ -909,14 +904,6 @@ fn end_of_run(line: &[u8], mut x: usize) -> usize {
     (x..line.len())
         .find(|&i| line[i] == 0)
         .unwrap_or(line.len())
-}
-
-/// Whether every byte of `bytes` is zero, tested as one word (false for more than 8 bytes).
-fn all_zero(bytes: &[u8]) -> bool {
-    let mut word = [0u8; 8];
-    let n = bytes.len().min(8);
-    word[..n].copy_from_slice(&bytes[..n]);
-    u64::from_ne_bytes(word) == 0 && bytes.len() <= 8
 }
 
 /// The widest blob the small window of half-size `r` measures well, pixels: a dot covering
