@@ -38,8 +38,13 @@
 //!    again with it, and steps 2-3 run a second time with the tight gate: this absorbs
 //!    fast head motion that the constant-velocity prediction misses.
 //!
-//! Markers that come back after an occlusion are re-identified at their last seen
-//! head-frame position carried by the current pose, with a gate that grows with the gap.
+//! Markers that come back after an occlusion are looked for where their neighbours
+//! labeled in the last frame put them (their neutral position moved like those
+//! neighbours), with a gate that grows with the gap; those not found there, in a third
+//! pass, at their last seen head-frame position carried by the current pose, when that
+//! is elsewhere (neighbours lost with the marker leave the interpolation to farther ones,
+//! which may move differently), among the detections left free and with the markers not
+//! labeled as rivals. The next frame's search windows cover both places.
 //! Spurious blobs match no prediction, or fail the epipolar and 3D gates. When too few
 //! markers are labeled for a few frames, or the head pose does not fit the labels, the
 //! tracks are dropped and the next frame is acquired again.
@@ -939,9 +944,18 @@ impl Labeler {
             self.last_frame = Some(frame);
             // Next frame's predictions with the final pass's gates (the ROI adds the pose
             // pass's extra).
-            let preds = self
-                .predicted_pose(1)
-                .map(|pose| self.predictions(&pose, 1, 0.0));
+            // Markers coming back after a gap are also looked for where they were last
+            // seen (the tracking's third pass): their windows too.
+            let preds = self.predicted_pose(1).map(|pose| {
+                let mut preds = self.predictions(&pose, 1, 0.0);
+                let alt = self.predictions_from(&pose, 1, 0.0, tracking::Returning::WhereLastSeen);
+                for (i, a) in alt.iter().enumerate() {
+                    if self.worth_looking_where_last_seen(i, a, &preds[i]) {
+                        preds.push(*a);
+                    }
+                }
+                preds
+            });
             let steady = stats.labeled as f64 >= WINDOWS_KEEP_SHARE * self.last_labeled as f64;
             self.rois = preds
                 .as_ref()

@@ -914,3 +914,63 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
     let (labeled, _, merged_labeled) = run(false);
     assert_eq!((labeled, merged_labeled), (0, 0));
 }
+
+#[test]
+fn a_marker_back_where_it_was_is_labeled_when_its_neighbours_moved_away() {
+    // A marker and its three nearest neighbours leave the images for 20 frames (a row of
+    // chin dots below the frame's edge) while the lower face's other markers move 5 mm
+    // up, smoothly; the four come back where they were. Their neighbours that stayed in
+    // view put them 5 mm (about 15 px) up, beyond the gate of a returning marker: only a
+    // look where they were last seen finds them.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(7);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(107);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let k = (0..pts.len())
+        .filter(|&i| pts[i].y < -20.0 && pts[i].x.abs() < 20.0)
+        .min_by(|&a, &b| pts[a].y.total_cmp(&pts[b].y).reverse())
+        .unwrap();
+    let mut by_distance: Vec<usize> = (0..pts.len()).filter(|&j| j != k).collect();
+    by_distance.sort_by(|&a, &b| {
+        (pts[a] - pts[k])
+            .norm()
+            .total_cmp(&(pts[b] - pts[k]).norm())
+    });
+    let cluster: Vec<usize> = std::iter::once(k)
+        .chain(by_distance[..3].iter().copied())
+        .collect();
+    let hiding = 10..30;
+    let mut wrong_total = 0;
+    for f in 0..40usize {
+        // The lower face outside the cluster rises by 0.5 mm a frame from frame 10 to 20.
+        let rise = 0.5 * (f.clamp(10, 20) - 10) as f64;
+        let moved: Vec<Point3<f64>> = pts
+            .iter()
+            .enumerate()
+            .map(|(j, p)| {
+                if cluster.contains(&j) || p.y > 0.0 {
+                    *p
+                } else {
+                    p + Vector3::new(0.0, rise, 0.0)
+                }
+            })
+            .collect();
+        let hide: Vec<usize> = if hiding.contains(&f) {
+            cluster.clone()
+        } else {
+            Vec::new()
+        };
+        let obs = observe(&rig, &pose, &moved, &hide, 0.15, 0, &mut rng);
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let (_, wrong) = count(&out, &truth);
+        wrong_total += wrong;
+        if f == hiding.end + 1 {
+            for &j in &cluster {
+                assert!(out.markers[j].is_some(), "marker {j} not back at frame {f}");
+            }
+        }
+    }
+    assert_eq!(wrong_total, 0);
+}

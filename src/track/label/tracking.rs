@@ -201,6 +201,18 @@ impl Labeler {
         steps: usize,
         extra_gate_px: f64,
     ) -> Vec<Prediction> {
+        self.predictions_from(pose, steps, extra_gate_px, Returning::FromNeighbours)
+    }
+
+    /// [`Labeler::predictions`], with markers not labeled in the last frame placed as
+    /// `returning` says.
+    pub(super) fn predictions_from(
+        &self,
+        pose: &Isometry3<f64>,
+        steps: usize,
+        extra_gate_px: f64,
+        returning: Returning,
+    ) -> Vec<Prediction> {
         let p = &self.params;
         let f = self.rig.cam0.fx().min(self.rig.cam1.fx()).max(1e-9);
         self.tracks
@@ -208,11 +220,12 @@ impl Labeler {
             .enumerate()
             .map(|(i, t)| {
                 let motion = t.velocity * (p.velocity_damping * steps as f64);
-                let neighbours_head = if t.frames_since_seen == Some(0) {
-                    None
-                } else {
-                    self.head_from_neighbours(i)
-                };
+                let neighbours_head =
+                    if t.frames_since_seen == Some(0) || returning == Returning::WhereLastSeen {
+                        None
+                    } else {
+                        self.head_from_neighbours(i)
+                    };
                 let head = neighbours_head.unwrap_or(t.head);
                 let point = pose * (head + motion);
                 let pixels = self.project_both(&point);
@@ -233,7 +246,10 @@ impl Labeler {
                     _ => 0.0,
                 });
                 let first_sighting = t.frames_since_seen != Some(0);
-                let may_be_worn = p.worn_dots && (first_sighting || t.worn);
+                // A blob too long for a dot is taken only where the neighbours put it.
+                let may_be_worn = p.worn_dots
+                    && (first_sighting || t.worn)
+                    && !(first_sighting && returning == Returning::WhereLastSeen);
                 let vouched = if !may_be_worn {
                     None
                 } else if first_sighting {
@@ -313,6 +329,7 @@ impl Labeler {
         // Pass 2: tight gates around predictions under the estimated pose.
         let tight = self.predictions(&pose, steps, 0.0);
         let mut second = self.label_pass(&tight, pixels);
+        self.label_where_last_seen(&pose, steps, &tight, pixels, &mut second);
         let final_pose = match self.estimate_pose(&second.labels) {
             Some((pose, rms)) if rms <= self.params.max_pose_rms_mm => pose,
             Some((_, rms)) => {
@@ -324,6 +341,71 @@ impl Labeler {
             None => pose,
         };
         Some((final_pose, second))
+    }
+
+    /// Pass 3: markers coming back after a gap, not labeled where their neighbours put them
+    /// (`tight`), looked for where they were last seen, when that is more than half a gate
+    /// away. Neighbours that were lost with the marker (a row of chin dots leaving the
+    /// image together) leave the interpolation to farther ones, whose motion may differ by
+    /// a lip's; a marker that left one camera's image and stayed whole in the other is
+    /// often still where it was. The pass labels among the detections left free, with the
+    /// other markers not labeled as rivals, and takes its labels of those markers only.
+    fn label_where_last_seen(
+        &self,
+        pose: &Isometry3<f64>,
+        steps: usize,
+        tight: &[Prediction],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        labeled: &mut PassResult,
+    ) {
+        let mut done = vec![false; tight.len()];
+        for l in &labeled.labels {
+            done[l.marker] = true;
+        }
+        let mut alt = self.predictions_from(pose, steps, 0.0, Returning::WhereLastSeen);
+        let retry: Vec<bool> = (0..tight.len())
+            .map(|i| !done[i] && self.worth_looking_where_last_seen(i, &alt[i], &tight[i]))
+            .collect();
+        if !retry.iter().any(|&r| r) {
+            return;
+        }
+        for (i, pr) in alt.iter_mut().enumerate() {
+            if done[i] {
+                pr.pixels = [None, None];
+            } else if !retry[i] {
+                *pr = tight[i];
+            }
+        }
+        let mut free = pixels.clone();
+        for l in &labeled.labels {
+            free[0][l.det[0]] = None;
+            free[1][l.det[1]] = None;
+        }
+        let third = self.label_pass(&alt, &free);
+        for l in third.labels {
+            if retry[l.marker] {
+                tracing::debug!(marker = l.marker, "labeled where last seen");
+                labeled.labels.push(l);
+            }
+        }
+    }
+
+    /// Whether marker `i`, predicted at `from_neighbours` and (last seen) at
+    /// `where_last_seen`, is worth a look at the latter: it comes back after a gap, was
+    /// labeled before, and the two places are more than half a gate apart in a camera.
+    pub(super) fn worth_looking_where_last_seen(
+        &self,
+        i: usize,
+        where_last_seen: &Prediction,
+        from_neighbours: &Prediction,
+    ) -> bool {
+        let apart = (0..2).any(
+            |c| match (where_last_seen.pixels[c], from_neighbours.pixels[c]) {
+                (Some(x), Some(y)) => (x - y).norm() > 0.5 * from_neighbours.gate_px,
+                _ => false,
+            },
+        );
+        from_neighbours.first_sighting && self.tracks[i].frames_since_seen.is_some() && apart
     }
 
     /// Weighted robust Horn fit of the head pose to labels: sources are the neutral
@@ -594,4 +676,13 @@ mod tests {
         let (s1, s2) = singular_values(&Matrix2x3::new(1.0, 2.0, 2.0, 0.0, 0.0, 0.0));
         assert!((s1 - 3.0).abs() < 1e-12 && s2.abs() < 1e-6, "{s1} {s2}");
     }
+}
+
+/// Where a pass predicts a marker not labeled in the last frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Returning {
+    /// Moved like its neighbours that were labeled (see [`Labeler::head_from_neighbours`]).
+    FromNeighbours,
+    /// Where it was last labeled, in the head's frame.
+    WhereLastSeen,
 }
