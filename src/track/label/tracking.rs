@@ -656,6 +656,15 @@ fn trimmed_horn(
     (den > 0.0).then(|| (t, (num / den).sqrt()))
 }
 
+/// Where a pass predicts a marker not labeled in the last frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Returning {
+    /// Moved like its neighbours that were labeled (see [`Labeler::head_from_neighbours`]).
+    FromNeighbours,
+    /// Where it was last labeled, in the head's frame.
+    WhereLastSeen,
+}
+
 #[cfg(test)]
 mod tests {
     use super::singular_values;
@@ -676,13 +685,4 @@ mod tests {
         let (s1, s2) = singular_values(&Matrix2x3::new(1.0, 2.0, 2.0, 0.0, 0.0, 0.0));
         assert!((s1 - 3.0).abs() < 1e-12 && s2.abs() < 1e-6, "{s1} {s2}");
     }
-}
-
-/// Where a pass predicts a marker not labeled in the last frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Returning {
-    /// Moved like its neighbours that were labeled (see [`Labeler::head_from_neighbours`]).
-    FromNeighbours,
-    /// Where it was last labeled, in the head's frame.
-    WhereLastSeen,
 }
