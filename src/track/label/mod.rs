@@ -948,10 +948,13 @@ impl Labeler {
             // seen (the tracking's third pass): their windows too.
             let preds = self.predicted_pose(1).map(|pose| {
                 let mut preds = self.predictions(&pose, 1, 0.0);
-                let alt = self.predictions_from(&pose, 1, 0.0, tracking::Returning::WhereLastSeen);
-                for (i, a) in alt.iter().enumerate() {
-                    if self.worth_looking_where_last_seen(i, a, &preds[i]) {
-                        preds.push(*a);
+                if self.any_returning() {
+                    let alt =
+                        self.predictions_from(&pose, 1, 0.0, tracking::Returning::WhereLastSeen);
+                    for (i, a) in alt.iter().enumerate() {
+                        if self.worth_looking_where_last_seen(i, a, &preds[i]) {
+                            preds.push(*a);
+                        }
                     }
                 }
                 preds

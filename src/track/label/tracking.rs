@@ -358,6 +358,9 @@ impl Labeler {
         pixels: &[Vec<Option<Point2<f64>>>; 2],
         labeled: &mut PassResult,
     ) {
+        if !self.any_returning() {
+            return;
+        }
         let mut done = vec![false; tight.len()];
         for l in &labeled.labels {
             done[l.marker] = true;
@@ -388,6 +391,14 @@ impl Labeler {
                 labeled.labels.push(l);
             }
         }
+    }
+
+    /// Whether any marker labeled before was not labeled in the last frame (one that may
+    /// come back where it was last seen).
+    pub(super) fn any_returning(&self) -> bool {
+        self.tracks
+            .iter()
+            .any(|t| t.frames_since_seen.is_some_and(|n| n > 0))
     }
 
     /// Whether marker `i`, predicted at `from_neighbours` and (last seen) at
