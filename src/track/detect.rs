@@ -29,7 +29,7 @@
 
 use nalgebra::Point2;
 
-use super::search_windows::{Rect, SearchWindows};
+use super::search_windows::{Rect, SearchWindows, in_any};
 use crate::capture::GrayImage;
 use crate::numeric::{find_root, join_sets};
 use crate::param_error::{self, ParamError};
@@ -384,12 +384,7 @@ impl MarkerDetector {
         centres: &[Rect],
     ) -> Vec<Detection> {
         let mut found = self.windowed(image, params, windows, Some(centres));
-        found.retain(|d| {
-            let (x, y) = (d.centre_px.x, d.centre_px.y);
-            centres.iter().any(|&(a, b, c, e)| {
-                x >= f64::from(a) && x < f64::from(c) && y >= f64::from(b) && y < f64::from(e)
-            })
-        });
+        found.retain(|d| in_any(centres, d.centre_px));
         found
     }
 
@@ -2211,12 +2206,7 @@ mod tests {
     fn centred_in(found: &[Detection], boxes: &[Rect]) -> Vec<Detection> {
         found
             .iter()
-            .filter(|d| {
-                let (x, y) = (d.centre_px.x, d.centre_px.y);
-                boxes.iter().any(|&(a, b, c, e)| {
-                    x >= f64::from(a) && x < f64::from(c) && y >= f64::from(b) && y < f64::from(e)
-                })
-            })
+            .filter(|d| in_any(boxes, d.centre_px))
             .copied()
             .collect()
     }

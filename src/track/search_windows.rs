@@ -2,8 +2,17 @@
 //! predicted marker while tracking), held as merged column spans per band of rows so that
 //! the detector's row loop finds a row's spans in `O(log bands)`.
 
+use nalgebra::Point2;
+
 /// A rectangle `(x0, y0, x1, y1)`, pixels, end exclusive.
 pub type Rect = (u32, u32, u32, u32);
+
+/// Whether `p` (pixel centres at integers) lies in one of `rects`.
+pub fn in_any(rects: &[Rect], p: Point2<f64>) -> bool {
+    rects.iter().any(|&(x0, y0, x1, y1)| {
+        p.x >= f64::from(x0) && p.x < f64::from(x1) && p.y >= f64::from(y0) && p.y < f64::from(y1)
+    })
+}
 
 /// The union of rectangles, clipped to a region (see the module docs).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
