@@ -402,10 +402,15 @@ pub(super) struct Search {
 }
 
 /// Nearest-neighbour queries within a radius over the triangulated points.
+///
+/// Most queries of a registration are misses: a wrong hypothesis puts most neutral markers
+/// where no point is. A coarse occupancy grid ([`Occupancy`]) answers those without the
+/// tree, with the same answers.
 pub(super) struct PointGrid {
     points: Vec<Point3<f64>>,
     radius_sq: f64,
     index: NearestPoints,
+    occupancy: Option<Occupancy>,
 }
 
 impl PointGrid {
@@ -415,12 +420,195 @@ impl PointGrid {
             points: points.to_vec(),
             radius_sq: radius * radius,
             index: NearestPoints::new(points.iter().copied()),
+            occupancy: Occupancy::new(points, radius),
         }
     }
 
     /// Index and distance of the nearest point within the radius.
     pub(super) fn nearest(&self, q: &Point3<f64>) -> Option<(usize, f64)> {
+        if self.occupancy.as_ref().is_some_and(|o| !o.may_hold(q)) {
+            return None;
+        }
         let (i, d2) = self.index.nearest(q)?;
         (d2 < self.radius_sq).then(|| (i, d2.sqrt()))
+    }
+}
+
+/// Cubic cells, at least a query radius wide, over the bounding box of a set of points;
+/// a cell is marked when it or one of its 26 neighbours holds a point. A point within the
+/// radius of a query lies in the query's cell or a neighbour (the cells are wider than the
+/// radius), so a query in an unmarked cell, or outside the grid, has none.
+#[derive(Debug, Clone)]
+struct Occupancy {
+    origin: Vector3<f64>,
+    cell: f64,
+    dims: [usize; 3],
+    marked: Vec<u64>,
+}
+
+impl Occupancy {
+    /// Most cells of a grid: a wider spread of points gets wider cells (the test stays
+    /// exact, it only rules out fewer queries).
+    const MAX_CELLS: usize = 1 << 21;
+
+    /// The grid of the finite `points` for queries within `radius`; None without a
+    /// finite point or a positive finite radius.
+    fn new(points: &[Point3<f64>], radius: f64) -> Option<Self> {
+        if !(radius.is_finite() && radius > 0.0) {
+            return None;
+        }
+        let finite = || {
+            points
+                .iter()
+                .filter(|p| p.coords.iter().all(|v| v.is_finite()))
+        };
+        let lo = finite().fold(None, |acc: Option<Vector3<f64>>, p| {
+            Some(acc.map_or(p.coords, |a| a.inf(&p.coords)))
+        })?;
+        let hi = finite().fold(lo, |a, p| a.sup(&p.coords));
+        // A hair wider than the radius, so that rounding cannot put a point within the
+        // radius two cells away.
+        let mut cell = radius * (1.0 + 1e-9);
+        let dims_for = |cell: f64| -> [usize; 3] {
+            // One cell of margin either side of the points' cells.
+            [0, 1, 2].map(|a| ((hi[a] - lo[a]) / cell).floor().min(1e12) as usize + 3)
+        };
+        let mut dims = dims_for(cell);
+        while dims
+            .iter()
+            .try_fold(1usize, |n, &d| n.checked_mul(d))
+            .is_none_or(|n| n > Self::MAX_CELLS)
+        {
+            cell *= 2.0;
+            dims = dims_for(cell);
+        }
+        let mut grid = Self {
+            origin: lo - Vector3::repeat(cell),
+            cell,
+            dims,
+            marked: vec![0; (dims[0] * dims[1] * dims[2]).div_ceil(64)],
+        };
+        for p in finite() {
+            // In 1..=dims − 2 on every axis (the margin holds the neighbours); clamped
+            // there, as rounding may put a point on the box's side in the margin.
+            let [x, y, z] = [0, 1, 2].map(|a| {
+                let c = ((p[a] - grid.origin[a]) / cell).floor();
+                (c.max(1.0) as usize).min(dims[a] - 2)
+            });
+            for k in z - 1..=z + 1 {
+                for j in y - 1..=y + 1 {
+                    for i in x - 1..=x + 1 {
+                        let n = (k * dims[1] + j) * dims[0] + i;
+                        grid.marked[n / 64] |= 1 << (n % 64);
+                    }
+                }
+            }
+        }
+        Some(grid)
+    }
+
+    /// The cell holding `q`; None outside the grid or for a non-finite point.
+    fn cell_of(&self, q: &Point3<f64>) -> Option<[usize; 3]> {
+        let mut cell = [0; 3];
+        for a in 0..3 {
+            let c = ((q[a] - self.origin[a]) / self.cell).floor();
+            if !(c >= 0.0 && c < self.dims[a] as f64) {
+                return None;
+            }
+            cell[a] = c as usize;
+        }
+        Some(cell)
+    }
+
+    /// Whether a point may lie within the radius of `q` (false: none does).
+    fn may_hold(&self, q: &Point3<f64>) -> bool {
+        self.cell_of(q).is_some_and(|[x, y, z]| {
+            let n = (z * self.dims[1] + y) * self.dims[0] + x;
+            self.marked[n / 64] & (1 << (n % 64)) != 0
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The nearest point within `radius` by looking at every point.
+    fn brute_force(points: &[Point3<f64>], q: &Point3<f64>, radius: f64) -> Option<(usize, f64)> {
+        points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, (p - q).norm_squared()))
+            .filter(|&(_, d2)| d2.is_finite() && d2 < radius * radius)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, d2)| (i, d2.sqrt()))
+    }
+
+    #[test]
+    fn the_occupancy_grid_leaves_every_answer_as_the_tree_gives_it() {
+        let mut rng = StdRng::seed_from_u64(7);
+        let radius = 3.0;
+        let mut face: Vec<Point3<f64>> = (0..120)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(-70.0..70.0),
+                    rng.random_range(-90.0..90.0),
+                    rng.random_range(90.0..180.0),
+                )
+            })
+            .collect();
+        face.push(Point3::new(f64::NAN, 0.0, 120.0));
+        // A mispaired blob triangulated far away widens the grid's cells.
+        let mut spread = face.clone();
+        spread.push(Point3::new(5e4, -3e4, 9e4));
+        for points in [&face, &spread] {
+            let grid = PointGrid::new(points, radius);
+            let occupancy = grid.occupancy.as_ref().expect("finite points");
+            assert!(occupancy.cell >= radius);
+            let (mut hits, mut skipped) = (0, 0);
+            for k in 0..20_000 {
+                let q = if k % 2 == 0 {
+                    // Near a point: at, inside and just beyond the radius.
+                    let p = points[rng.random_range(0..120)];
+                    let dir = Vector3::new(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                    )
+                    .normalize();
+                    p + dir * radius * rng.random_range(0.9..1.1)
+                } else {
+                    Point3::new(
+                        rng.random_range(-120.0..120.0),
+                        rng.random_range(-140.0..140.0),
+                        rng.random_range(40.0..240.0),
+                    )
+                };
+                let expected = brute_force(points, &q, radius);
+                let found = grid.nearest(&q);
+                assert_eq!(found.map(|f| f.0), expected.map(|e| e.0), "query {q}");
+                if let (Some(f), Some(e)) = (found, expected) {
+                    assert!((f.1 - e.1).abs() < 1e-12);
+                }
+                hits += usize::from(expected.is_some());
+                skipped += usize::from(!occupancy.may_hold(&q));
+            }
+            assert!(hits > 2_000, "{hits} hits: the queries test too little");
+            if std::ptr::eq(points, &face) {
+                assert!(
+                    skipped > 8_000,
+                    "only {skipped} of 20,000 queries ruled out"
+                );
+            }
+        }
+        assert_eq!(
+            PointGrid::new(&face, radius).nearest(&Point3::new(f64::NAN, 0.0, 0.0)),
+            None
+        );
+        assert!(
+            PointGrid::new(&[Point3::new(f64::NAN, 1.0, 1.0)], radius)
+                .occupancy
+                .is_none()
+        );
     }
 }
