@@ -36,7 +36,11 @@
 //! 4. The head pose of the frame is estimated by weighted Horn (stabilizing weights of
 //!    the layout, with outlier rejection) from these labels, all markers are predicted
 //!    again with it, and steps 2-3 run a second time with the tight gate: this absorbs
-//!    fast head motion that the constant-velocity prediction misses.
+//!    fast head motion that the constant-velocity prediction misses. A marker tracked
+//!    in the last frame that the tight gate misses but step 3 with the wide gate found
+//!    (a lip corner starting to move fast) keeps that label when its dot left its
+//!    predicted place and the blob is new where it is (the last frame had none where
+//!    the skin there came from: a mole beside a vanished marker was there before).
 //!
 //! Markers that come back after an occlusion are looked for where their neighbours
 //! labeled in the last frame put them (their neutral position moved like those
@@ -64,7 +68,7 @@ use rand::seq::SliceRandom;
 
 use super::Detection;
 use super::gate::{EpipolarGate, EpipolarGateParams};
-use super::search_windows::Rect;
+use super::search_windows::{Rect, in_any};
 use crate::camera::StereoRig;
 use crate::dataset::MarkerLayout;
 use crate::frame_index::FrameIndex;
@@ -529,6 +533,9 @@ pub struct Labeler {
     centres: [Vec<Rect>; 2],
     /// Markers labeled in the last processed frame.
     last_labeled: usize,
+    /// The last processed frame's detections, where they were looked for and where its
+    /// markers were labeled: whether a blob near a marker is new there.
+    seen_before: Option<SeenBefore>,
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
@@ -572,6 +579,30 @@ struct Prediction {
     /// A worn dot may be taken for the marker: worn dots are on and the marker was not
     /// labeled in the last frame, or was on a worn dot.
     may_be_worn: bool,
+}
+
+/// A frame's detections as the next frame sees them (see `Labeler::label_sudden_moves`).
+#[derive(Debug, Clone, Default)]
+struct SeenBefore {
+    /// The detections' centres, per camera.
+    pixels: [Vec<Point2<f64>>; 2],
+    /// Per camera, the boxes the detector reported blobs in (empty: the whole image or
+    /// region of interest).
+    looked: [Vec<Rect>; 2],
+    /// Each marker's pixels where it was labeled (None: not labeled).
+    markers: Vec<Option<[Point2<f64>; 2]>>,
+}
+
+impl SeenBefore {
+    /// Whether camera `c` had no blob within `tolerance_px` of `at`, in a place its
+    /// detector looked (false where it did not look: nothing is known there).
+    fn nothing_near(&self, c: usize, at: Point2<f64>, tolerance_px: f64) -> bool {
+        let looked = self.looked[c].is_empty() || in_any(&self.looked[c], at);
+        looked
+            && self.pixels[c]
+                .iter()
+                .all(|p| (p - at).norm() > tolerance_px)
+    }
 }
 
 /// What the labeler reads of a detection's shape.
@@ -713,6 +744,7 @@ impl Labeler {
             windows: [Vec::new(), Vec::new()],
             centres: [Vec::new(), Vec::new()],
             last_labeled: 0,
+            seen_before: None,
             gate: EpipolarGate::new(EpipolarGateParams {
                 floor_px: params.max_reprojection_px,
                 ceiling_px: params
@@ -789,6 +821,7 @@ impl Labeler {
         self.rois = [None, None];
         self.windows = [Vec::new(), Vec::new()];
         self.centres = [Vec::new(), Vec::new()];
+        self.seen_before = None;
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -840,6 +873,8 @@ impl Labeler {
             ..LabelStats::default()
         };
         self.blobs = [0, 1].map(|c| detections[c].iter().map(BlobShape::of).collect());
+        // Where this frame's detector reported blobs (it looked where the last frame said).
+        let looked = self.centres.clone();
         // Detections with non-finite centres are never used.
         let pixels: [Vec<Option<Point2<f64>>>; 2] = [0, 1].map(|c| {
             detections[c]
@@ -882,6 +917,7 @@ impl Labeler {
         let mut out = vec![None; m];
         let Some((pose, pass)) = result else {
             self.last_frame = None;
+            self.seen_before = None;
             return LabeledFrame {
                 markers: out,
                 stats,
@@ -969,6 +1005,11 @@ impl Labeler {
             };
         }
         self.last_labeled = stats.labeled;
+        self.seen_before = self.last_frame.map(|_| SeenBefore {
+            pixels: pixels.map(|p| p.into_iter().flatten().collect()),
+            looked,
+            markers: out.iter().map(|l| l.as_ref().map(|l| l.pixels)).collect(),
+        });
         LabeledFrame {
             markers: out,
             stats,

@@ -974,3 +974,109 @@ fn a_marker_back_where_it_was_is_labeled_when_its_neighbours_moved_away() {
     }
     assert_eq!(wrong_total, 0);
 }
+
+#[test]
+fn a_marker_that_starts_moving_fast_is_kept_and_a_mole_where_one_vanished_is_not() {
+    // Two lower-face markers still for 20 frames, then moving 3 mm a frame (a lip corner
+    // pulled in a smile): the first jump lies beyond the tight gate of a marker tracked
+    // at rest, inside the pose pass's wide one. Two other markers vanish on frame 20
+    // (hidden by the lip, smudged off), each with a mole as large as a dot 4 mm from its
+    // place from the first frame on: inside the wide gate too (and beyond the gate of a
+    // marker coming back), but it was there the frame before.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(8);
+    let mut lab = labeler(&layout, &pts);
+    let params = LabelParams::default();
+    let mut rng = Rng::new(108);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let pick = |wanted: &dyn Fn(&Point3<f64>) -> bool, n: usize| -> Vec<usize> {
+        let mut picked: Vec<usize> = Vec::new();
+        for (k, p) in pts.iter().enumerate() {
+            if picked.len() < n && wanted(p) && picked.iter().all(|&j| (pts[j] - p).norm() > 40.0) {
+                picked.push(k);
+            }
+        }
+        assert_eq!(picked.len(), n);
+        picked
+    };
+    let moving = pick(&|p| p.y < -25.0 && p.x.abs() < 40.0, 2);
+    let vanishing = pick(&|p| p.y > 25.0 && p.x.abs() < 40.0, 2);
+    let step = Vector3::new(3.0, 0.0, 0.0);
+    let moles: Vec<Point3<f64>> = vanishing
+        .iter()
+        .map(|&k| pts[k] + Vector3::new(0.0, 4.0, 0.0))
+        .collect();
+    // The first jump, in cam0 pixels: beyond the tight gate, inside the wide one.
+    for &k in &moving {
+        let at = |p: Point3<f64>| rig.cam0.project(&(pose * p).coords).unwrap();
+        let jump = (at(pts[k] + step) - at(pts[k])).norm();
+        assert!(
+            jump > params.gate_px + 1.0
+                && jump < params.gate_px + params.pose_pass_extra_gate_px - 1.0,
+            "a jump of {jump:.1} px"
+        );
+    }
+    for f in 0..25usize {
+        let shift = step * (f.max(19) - 19) as f64;
+        let moved: Vec<Point3<f64>> = pts
+            .iter()
+            .enumerate()
+            .map(|(k, p)| if moving.contains(&k) { p + shift } else { *p })
+            .collect();
+        let hide: Vec<usize> = if f >= 20 {
+            vanishing.clone()
+        } else {
+            Vec::new()
+        };
+        let mut obs = observe(&rig, &pose, &moved, &hide, 0.15, 0, &mut rng);
+        for mole in &moles {
+            add_blob(&rig, &pose, &mut obs, mole, |dot_px| (dot_px, 0.9, 1.0));
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let (_, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
+        if f >= 2 {
+            for &k in &moving {
+                assert!(
+                    out.markers[k].is_some(),
+                    "moving marker {k} lost at frame {f}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn one_neighbour_moving_unlike_the_rest_does_not_move_where_the_neighbours_put_a_marker() {
+    let (layout, pts) = face(9);
+    let mut lab = labeler(&layout, &pts);
+    let i = (0..pts.len())
+        .find(|&i| lab.neighbours[i].len() >= 5)
+        .expect("a marker with five neighbours");
+    let (nearest, _) = lab.neighbours[i][0];
+    let set = |lab: &mut Labeler, shift: &dyn Fn(usize) -> Vector3<f64>| {
+        for (j, t) in lab.tracks.iter_mut().enumerate() {
+            t.head = pts[j] + shift(j);
+            t.frames_since_seen = Some(if j == i { 1 } else { 0 });
+        }
+    };
+    // Every neighbour 3 mm to the side: the marker follows.
+    set(&mut lab, &|_| Vector3::new(3.0, 0.0, 0.0));
+    let h = lab.head_from_neighbours(i).unwrap();
+    assert!((h - (pts[i] + Vector3::new(3.0, 0.0, 0.0))).norm() < 1e-9);
+    // Only the nearest one, 10 mm down (a weighted mean moves the place 1.7 mm or more).
+    set(&mut lab, &|j| {
+        if j == nearest {
+            Vector3::new(0.0, -10.0, 0.0)
+        } else {
+            Vector3::zeros()
+        }
+    });
+    let h = lab.head_from_neighbours(i).unwrap();
+    assert!(
+        (h - pts[i]).norm() < 1e-9,
+        "moved {:.2} mm",
+        (h - pts[i]).norm()
+    );
+}

@@ -282,19 +282,38 @@ impl Labeler {
 
     /// Head-frame position of a marker not labeled in the last frame: its neutral
     /// position moved like its neighbours that were (inverse-distance weights); None
-    /// with fewer than two such neighbours.
+    /// with fewer than two such neighbours. With three or more, the weighted median of
+    /// their displacements, per axis: one neighbour moving unlike the rest (a lip corner
+    /// in a smile beside still cheek markers) does not drag the place, where a weighted
+    /// mean moved it by a sixth of that motion or more.
     pub(super) fn head_from_neighbours(&self, i: usize) -> Option<Point3<f64>> {
-        let (mut sum, mut wsum, mut count) = (Vector3::zeros(), 0.0, 0);
-        for &(j, d) in &self.neighbours[i] {
-            let t = &self.tracks[j];
-            if t.frames_since_seen == Some(0) {
-                let w = 1.0 / (d + 5.0);
-                sum += (t.head - self.neutral[j]) * w;
-                wsum += w;
-                count += 1;
-            }
+        let moved: Vec<(Vector3<f64>, f64)> = self.neighbours[i]
+            .iter()
+            .filter(|&&(j, _)| self.tracks[j].frames_since_seen == Some(0))
+            .map(|&(j, d)| (self.tracks[j].head - self.neutral[j], 1.0 / (d + 5.0)))
+            .collect();
+        if moved.len() < 2 {
+            return None;
         }
-        (count >= 2).then(|| self.neutral[i] + sum / wsum)
+        if moved.len() == 2 {
+            let wsum = moved[0].1 + moved[1].1;
+            return Some(
+                self.neutral[i] + (moved[0].0 * moved[0].1 + moved[1].0 * moved[1].1) / wsum,
+            );
+        }
+        let median = Vector3::from_fn(|a, _| {
+            let mut v: Vec<(f64, f64)> = moved.iter().map(|(m, w)| (m[a], *w)).collect();
+            v.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let half = 0.5 * v.iter().map(|x| x.1).sum::<f64>();
+            let mut acc = 0.0;
+            v.iter()
+                .find(|x| {
+                    acc += x.1;
+                    acc >= half
+                })
+                .map_or(0.0, |x| x.0)
+        });
+        Some(self.neutral[i] + median)
     }
 
     /// Pixels of a cam0 point in both cameras (None behind a camera or outside its image).
@@ -329,6 +348,7 @@ impl Labeler {
         // Pass 2: tight gates around predictions under the estimated pose.
         let tight = self.predictions(&pose, steps, 0.0);
         let mut second = self.label_pass(&tight, pixels);
+        self.label_sudden_moves(&first, &tight, pixels, &mut second);
         self.label_where_last_seen(&pose, steps, &tight, pixels, &mut second);
         let final_pose = match self.estimate_pose(&second.labels) {
             Some((pose, rms)) if rms <= self.params.max_pose_rms_mm => pose,
@@ -341,6 +361,85 @@ impl Labeler {
             None => pose,
         };
         Some((final_pose, second))
+    }
+
+    /// Markers that started moving fast: labeled in the last frame, found by the pose
+    /// pass (wide gates) but beyond their tight gate (a lip corner still in one frame and
+    /// moving 8 px the next; its prediction keeps the last frame's velocity). The pose
+    /// pass's label of such a marker is taken when
+    /// - it was confident (no rival candidate in either camera at the wide gate), not on a
+    ///   worn dot, and its detections are still free;
+    /// - the dot left its place: no blob within the tight gate of the prediction in
+    ///   either camera;
+    /// - its blob is new where it is: in each camera where it lies beyond the tight
+    ///   gate, the last frame had no blob within half a tight gate of the place the blob
+    ///   came from if it were skin (moved as the prediction moved since the last frame),
+    ///   where the detector looked. A mole or a freckle beside a marker that vanished
+    ///   (hidden by the lip, smudged) was there the frame before; a moving dot was not.
+    fn label_sudden_moves(
+        &self,
+        first: &PassResult,
+        tight: &[Prediction],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        labeled: &mut PassResult,
+    ) {
+        let Some(before) = &self.seen_before else {
+            return;
+        };
+        let mut done = vec![false; tight.len()];
+        let mut used: [Vec<bool>; 2] = [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
+        for l in &labeled.labels {
+            done[l.marker] = true;
+            used[0][l.det[0]] = true;
+            used[1][l.det[1]] = true;
+        }
+        for l in &first.labels {
+            let (i, pr) = (l.marker, &tight[l.marker]);
+            if !l.confident
+                || l.worn
+                || done[i]
+                || pr.first_sighting
+                || self.tracks[i].frames_since_seen != Some(0)
+                || used[0][l.det[0]]
+                || used[1][l.det[1]]
+            {
+                continue;
+            }
+            let Some(last) = before.markers.get(i).copied().flatten() else {
+                continue;
+            };
+            let mut moved_away = false;
+            let mut ok = true;
+            for c in 0..2 {
+                let (Some(q), Some(x)) = (pr.pixels[c], pixels[c][l.det[c]]) else {
+                    ok = false;
+                    break;
+                };
+                let left = pixels[c]
+                    .iter()
+                    .flatten()
+                    .all(|p| (p - q).norm() > pr.gate_px);
+                if !left {
+                    ok = false;
+                    break;
+                }
+                if (x - q).norm() > pr.gate_px {
+                    moved_away = true;
+                    let came_from = x - (q - last[c]);
+                    if !before.nothing_near(c, came_from, 0.5 * pr.gate_px) {
+                        ok = false;
+                        break;
+                    }
+                }
+            }
+            if ok && moved_away {
+                tracing::debug!(marker = i, "labeled after a sudden move");
+                used[0][l.det[0]] = true;
+                used[1][l.det[1]] = true;
+                done[i] = true;
+                labeled.labels.push(*l);
+            }
+        }
     }
 
     /// Pass 3: markers coming back after a gap, not labeled where their neighbours put them
