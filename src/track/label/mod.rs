@@ -49,7 +49,11 @@
 //! is elsewhere (neighbours lost with the marker leave the interpolation to farther ones,
 //! which may move differently), among the detections left free and with the markers not
 //! labeled as rivals. The next frame's search windows cover both places.
-//! Spurious blobs match no prediction, or fail the epipolar and 3D gates. When too few
+//! Spurious blobs match no prediction, or fail the epipolar and 3D gates. A blob that
+//! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
+//! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
+//! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
+//! it is not taken for it ([`Labeler::stood_beside`]). When too few
 //! markers are labeled for a few frames, or the head pose does not fit the labels, the
 //! tracks are dropped and the next frame is acquired again.
 //!
@@ -61,7 +65,7 @@ mod acquisition;
 mod assignment;
 mod tracking;
 
-use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
@@ -536,6 +540,11 @@ pub struct Labeler {
     /// The last processed frame's detections, where they were looked for and where its
     /// markers were labeled: whether a blob near a marker is new there.
     seen_before: Option<SeenBefore>,
+    /// Per marker and camera, the other blobs within [`Labeler::beside_reach_px`] of the
+    /// marker's dot the last time it was labeled, as offsets from it, pixels (at least a
+    /// tight gate away: nearer ones are pieces of the dot). Kept while the marker is
+    /// missing; see [`Labeler::stood_beside`].
+    beside: Vec<[Vec<Vector2<f64>>; 2]>,
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
@@ -745,6 +754,7 @@ impl Labeler {
             centres: [Vec::new(), Vec::new()],
             last_labeled: 0,
             seen_before: None,
+            beside: vec![Default::default(); m],
             gate: EpipolarGate::new(EpipolarGateParams {
                 floor_px: params.max_reprojection_px,
                 ceiling_px: params
@@ -822,6 +832,7 @@ impl Labeler {
         self.windows = [Vec::new(), Vec::new()];
         self.centres = [Vec::new(), Vec::new()];
         self.seen_before = None;
+        self.beside.iter_mut().for_each(|b| *b = Default::default());
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -955,6 +966,7 @@ impl Labeler {
                 reacquired,
             });
         }
+        self.remember_beside(&pass.labels, &pixels);
         for (track, &s) in self.tracks.iter_mut().zip(&seen) {
             if !s {
                 track.velocity = Vector3::zeros();

@@ -1080,3 +1080,60 @@ fn one_neighbour_moving_unlike_the_rest_does_not_move_where_the_neighbours_put_a
         (h - pts[i]).norm()
     );
 }
+
+#[test]
+fn a_mole_that_stood_beside_a_marker_is_not_taken_for_it_while_the_marker_is_gone() {
+    // Markers hidden for 30 frames (under the lip, or smudged off), each with a mole the
+    // size and shape of a dot 3-3.6 mm from it (just clear of the dot's 2.4 mm), there
+    // from the first frame on: inside the gate of a marker coming back once that gate has
+    // grown. Nothing of the blob tells it from the dot; only that it stood beside the
+    // marker while the marker was seen.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(10);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(110);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let hidden = [3, 8, 19, 27, 44, 58, 71];
+    let hiding = 10..40;
+    let moles: Vec<Point3<f64>> = hidden
+        .iter()
+        .enumerate()
+        .map(|(n, &k)| {
+            let normal = normal_at(&pts[k]);
+            let side = normal.cross(&Vector3::x()).normalize();
+            pts[k] + side * (3.0 + 0.1 * n as f64)
+        })
+        .collect();
+    let mut moles_in_reach = 0;
+    for f in 0..50usize {
+        let hide: Vec<usize> = if hiding.contains(&f) {
+            hidden.to_vec()
+        } else {
+            Vec::new()
+        };
+        let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
+        for (mole, &k) in moles.iter().zip(&hidden) {
+            let at = add_blob(&rig, &pose, &mut obs, mole, |dot_px| (dot_px, 0.9, 1.0));
+            if let Some(px) = at[0] {
+                let dot = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
+                let gap_gate = LabelParams::default().max_gap_gate_px;
+                moles_in_reach += usize::from((dot - px).norm() < gap_gate - 1.0);
+            }
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let (_, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
+        if f == hiding.end + 2 {
+            for &k in &hidden {
+                assert!(out.markers[k].is_some(), "marker {k} not back at frame {f}");
+            }
+        }
+    }
+    // Most moles were within reach of a marker coming back after a long gap (the others
+    // within the pose pass's wider gate), in every frame.
+    assert!(
+        moles_in_reach >= 4 * 50,
+        "{moles_in_reach} mole-frames in reach"
+    );
+}

@@ -442,6 +442,61 @@ impl Labeler {
         }
     }
 
+    /// How far from a marker's dot the blobs beside it are remembered, pixels: as far as
+    /// any of its gates reaches (the gap gate at its largest and the pose pass's extra),
+    /// and a tight gate more for the prediction's own error.
+    pub(super) fn beside_reach_px(&self) -> f64 {
+        let p = &self.params;
+        p.max_gap_gate_px.max(p.gate_px) + p.pose_pass_extra_gate_px + p.gate_px
+    }
+
+    /// Remembers, for each marker labeled in this frame, the other blobs beside its dot
+    /// (see [`Labeler::stood_beside`]); the memory of a marker not labeled is kept.
+    pub(super) fn remember_beside(
+        &mut self,
+        labels: &[Label],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+    ) {
+        let (near, reach) = (self.params.gate_px, self.beside_reach_px());
+        for l in labels {
+            for (c, dets) in pixels.iter().enumerate() {
+                let Some(x) = dets.get(l.det[c]).copied().flatten() else {
+                    continue;
+                };
+                let list = &mut self.beside[l.marker][c];
+                list.clear();
+                list.extend(
+                    dets.iter()
+                        .enumerate()
+                        .filter(|&(a, _)| a != l.det[c])
+                        .filter_map(|(_, p)| p.map(|p| p - x))
+                        .filter(|o| o.norm() >= near && o.norm() <= reach),
+                );
+            }
+        }
+    }
+
+    /// Whether the blob at `x` in camera `c`, a candidate of marker `i` predicted at `q`,
+    /// is one that stood beside the marker's dot the last time the marker was labeled: its
+    /// offset from the prediction is within `min(g/2 + |b|/10, |b|/2)` of a remembered
+    /// offset `b` (`g` the tight gate; the tenth for the skin's stretch and the head's turn
+    /// since, the half so that the blob is nearer to where the mole was than to the dot's
+    /// own place). A mole, a freckle or a neighbour's dot that the marker's dot had beside
+    /// it is not the marker when the dot vanishes (hidden by the lip, smudged off), however
+    /// dot-like it is and however far the gate of a marker coming back has grown. Only a
+    /// label is refused: the blob still counts as a rival, so the rule never makes a label
+    /// more certain.
+    pub(super) fn stood_beside(&self, i: usize, c: usize, x: Point2<f64>, q: Point2<f64>) -> bool {
+        let o = x - q;
+        let half_gate = 0.5 * self.params.gate_px;
+        self.beside.get(i).is_some_and(|b| {
+            b[c].iter().any(|b| {
+                let n = b.norm();
+                (o - b).norm() <= (half_gate + 0.1 * n).min(0.5 * n)
+            })
+        })
+    }
+
     /// Pass 3: markers coming back after a gap, not labeled where their neighbours put them
     /// (`tight`), looked for where they were last seen, when that is more than half a gate
     /// away. Neighbours that were lost with the marker (a row of chin dots leaving the
@@ -604,6 +659,15 @@ impl Labeler {
             let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
                 return None;
             };
+            let stood_beside = [x0, x1]
+                .iter()
+                .zip(preds[i].pixels)
+                .enumerate()
+                .any(|(c, (x, q))| q.is_some_and(|q| self.stood_beside(i, c, *x, q)));
+            if stood_beside {
+                tracing::trace!(marker = i, "a blob that stood beside the dot refused");
+                return None;
+            }
             let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
             if (bundle.point_in_cam0 - preds[i].point).norm() > preds[i].gate_mm {
                 return None;
