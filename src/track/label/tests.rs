@@ -657,31 +657,61 @@ fn a_freckle_beside_a_hidden_marker_is_not_taken_for_it() {
     // marker coming back, 0.6 of a dot's size (within the size range a tracked marker's
     // blob may have: a partly hidden dot). A marker not labeled in the last frame has no
     // track to vouch for a partial blob, so it must find a whole dot.
-    let rig = crate::camera::default_helmet_rig().unwrap();
-    let (layout, pts) = face(6);
-    let mut lab = labeler(&layout, &pts);
-    let mut rng = Rng::new(106);
-    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let (_, pts) = face(6);
     let hidden = [2, 5, 17, 23, 41, 60, 77];
     let hiding = 10..30;
-    let mut freckles_near_gate = 0;
-    for f in 0..40usize {
+    let freckles: Vec<Point3<f64>> = hidden
+        .iter()
+        .map(|&k| pts[k] + normal_at(&pts[k]).cross(&Vector3::x()).normalize() * 1.2)
+        .collect();
+    let near_gate = hidden_markers_with_blobs_beside(
+        (6, 106),
+        &hidden,
+        hiding.clone(),
+        40,
+        &freckles,
+        |f| f > hiding.start && hiding.contains(&f),
+        // 0.6 of a dot's size, round and filled.
+        |dot_px| (0.6 * (dot_px - 1.0) - 2.0, 0.9, 1.0),
+        6.0,
+    );
+    // The freckles were within reach: inside the smallest gate of a returning marker.
+    assert_eq!(near_gate, hidden.len() * (hiding.len() - 1));
+}
+
+/// Runs `frames` frames of the face of seed `seeds.0` (noise seed `seeds.1`) with the
+/// markers `hidden` gone over `hiding` and a blob of `shape` at `blobs[n]` (beside
+/// `hidden[n]`) in the frames `shown` says; asserts no wrong label in any frame and every
+/// hidden marker back two frames after `hiding`. Returns the blob-frames whose cam0 pixel
+/// lay within `reach_px` of their marker's dot.
+#[allow(clippy::too_many_arguments)]
+fn hidden_markers_with_blobs_beside(
+    seeds: (u64, u64),
+    hidden: &[usize],
+    hiding: std::ops::Range<usize>,
+    frames: usize,
+    blobs: &[Point3<f64>],
+    shown: impl Fn(usize) -> bool,
+    shape: impl Fn(f64) -> (f64, f64, f64),
+    reach_px: f64,
+) -> usize {
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(seeds.0);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(seeds.1);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let mut in_reach = 0;
+    for f in 0..frames {
         let hide: Vec<usize> = if hiding.contains(&f) {
             hidden.to_vec()
         } else {
             Vec::new()
         };
         let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
-        for &k in hide.iter().filter(|_| f > hiding.start) {
-            let n = normal_at(&pts[k]);
-            let freckle = pts[k] + n.cross(&Vector3::x()).normalize() * 1.2;
-            // 0.6 of a dot's size, round and filled.
-            let at = add_blob(&rig, &pose, &mut obs, &freckle, |dot_px| {
-                (0.6 * (dot_px - 1.0) - 2.0, 0.9, 1.0)
-            });
-            if let Some(px) = at[0] {
+        for (blob, &k) in blobs.iter().zip(hidden).filter(|_| shown(f)) {
+            if let Some(px) = add_blob(&rig, &pose, &mut obs, blob, &shape)[0] {
                 let dot = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
-                freckles_near_gate += usize::from((dot - px).norm() < 6.0);
+                in_reach += usize::from((dot - px).norm() < reach_px);
             }
         }
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
@@ -689,13 +719,12 @@ fn a_freckle_beside_a_hidden_marker_is_not_taken_for_it() {
         let (_, wrong) = count(&out, &truth);
         assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
         if f == hiding.end + 2 {
-            for &k in &hidden {
+            for &k in hidden {
                 assert!(out.markers[k].is_some(), "marker {k} not back at frame {f}");
             }
         }
     }
-    // The freckles were within reach: inside the smallest gate of a returning marker.
-    assert_eq!(freckles_near_gate, hidden.len() * (hiding.len() - 1));
+    in_reach
 }
 
 #[test]
@@ -1088,54 +1117,29 @@ fn a_mole_that_stood_beside_a_marker_is_not_taken_for_it_while_the_marker_is_gon
     // from the first frame on: inside the gate of a marker coming back once that gate has
     // grown. Nothing of the blob tells it from the dot; only that it stood beside the
     // marker while the marker was seen.
-    let rig = crate::camera::default_helmet_rig().unwrap();
-    let (layout, pts) = face(10);
-    let mut lab = labeler(&layout, &pts);
-    let mut rng = Rng::new(110);
-    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let (_, pts) = face(10);
     let hidden = [3, 8, 19, 27, 44, 58, 71];
-    let hiding = 10..40;
     let moles: Vec<Point3<f64>> = hidden
         .iter()
         .enumerate()
         .map(|(n, &k)| {
-            let normal = normal_at(&pts[k]);
-            let side = normal.cross(&Vector3::x()).normalize();
+            let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
             pts[k] + side * (3.0 + 0.1 * n as f64)
         })
         .collect();
-    let mut moles_in_reach = 0;
-    for f in 0..50usize {
-        let hide: Vec<usize> = if hiding.contains(&f) {
-            hidden.to_vec()
-        } else {
-            Vec::new()
-        };
-        let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
-        for (mole, &k) in moles.iter().zip(&hidden) {
-            let at = add_blob(&rig, &pose, &mut obs, mole, |dot_px| (dot_px, 0.9, 1.0));
-            if let Some(px) = at[0] {
-                let dot = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
-                let gap_gate = LabelParams::default().max_gap_gate_px;
-                moles_in_reach += usize::from((dot - px).norm() < gap_gate - 1.0);
-            }
-        }
-        let truth = [obs[0].1.clone(), obs[1].1.clone()];
-        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
-        let (_, wrong) = count(&out, &truth);
-        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
-        if f == hiding.end + 2 {
-            for &k in &hidden {
-                assert!(out.markers[k].is_some(), "marker {k} not back at frame {f}");
-            }
-        }
-    }
+    let in_reach = hidden_markers_with_blobs_beside(
+        (10, 110),
+        &hidden,
+        10..40,
+        50,
+        &moles,
+        |_| true,
+        |dot_px| (dot_px, 0.9, 1.0),
+        LabelParams::default().max_gap_gate_px - 1.0,
+    );
     // Most moles were within reach of a marker coming back after a long gap (the others
     // within the pose pass's wider gate), in every frame.
-    assert!(
-        moles_in_reach >= 4 * 50,
-        "{moles_in_reach} mole-frames in reach"
-    );
+    assert!(in_reach >= 4 * 50, "{in_reach} mole-frames in reach");
 }
 
 #[test]
