@@ -484,8 +484,9 @@ impl Labeler {
     /// own place). A mole, a freckle or a neighbour's dot that the marker's dot had beside
     /// it is not the marker when the dot vanishes (hidden by the lip, smudged off), however
     /// dot-like it is and however far the gate of a marker coming back has grown. Only a
-    /// label is refused: the blob still counts as a rival, so the rule never makes a label
-    /// more certain.
+    /// label is refused: the blob still counts as a rival, and a pair with it as one of a
+    /// marker in doubt, so the rule never makes a label more certain (a wrong label cannot
+    /// keep its marker's real dot away as a blob that stood beside it).
     pub(super) fn stood_beside(&self, i: usize, c: usize, x: Point2<f64>, q: Point2<f64>) -> bool {
         let o = x - q;
         let half_gate = 0.5 * self.params.gate_px;
@@ -659,15 +660,6 @@ impl Labeler {
             let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
                 return None;
             };
-            let stood_beside = [x0, x1]
-                .iter()
-                .zip(preds[i].pixels)
-                .enumerate()
-                .any(|(c, (x, q))| q.is_some_and(|q| self.stood_beside(i, c, *x, q)));
-            if stood_beside {
-                tracing::trace!(marker = i, "a blob that stood beside the dot refused");
-                return None;
-            }
             let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
             if (bundle.point_in_cam0 - preds[i].point).norm() > preds[i].gate_mm {
                 return None;
@@ -691,6 +683,18 @@ impl Labeler {
                     .then_some((bundle, true))
             }
         };
+        // Whether detections (a, b) stood beside marker i's dot ([`Labeler::stood_beside`]):
+        // never its label, but still a pair that makes the marker's label ambiguous.
+        let beside = |i: usize, a: usize, b: usize| {
+            [pixels[0][a], pixels[1][b]]
+                .iter()
+                .zip(preds[i].pixels)
+                .enumerate()
+                .any(|(c, (x, q))| match (x, q) {
+                    (Some(x), Some(q)) => self.stood_beside(i, c, *x, q),
+                    _ => false,
+                })
+        };
         let mut labels = Vec::new();
         let mut used: [Vec<bool>; 2] = [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
         let mut paired = 0;
@@ -703,6 +707,10 @@ impl Labeler {
             paired += 1;
             match (assigned[0][i], assigned[1][i]) {
                 (Some((a, false)), Some((b, false))) => match check(i, a, b) {
+                    Some(_) if beside(i, a, b) => {
+                        tracing::trace!(marker = i, "a blob that stood beside the dot refused");
+                        rejected += 1;
+                    }
                     Some((bundle, worn)) => {
                         used[0][a] = true;
                         used[1][b] = true;
@@ -735,6 +743,9 @@ impl Labeler {
                     }
                     if let Some((bundle, worn)) = check(i, a, b) {
                         count += 1;
+                        if beside(i, a, b) {
+                            continue;
+                        }
                         found = Some(Label {
                             marker: i,
                             det: [a, b],
