@@ -461,6 +461,8 @@ pub(crate) struct Scene<'a> {
     pub rest_positions: &'a [Point3<f64>],
     /// Features, dot wear and texture on the skin.
     pub skin: &'a skin::SkinLayout,
+    /// Per marker, its wear in this frame ([`skin::DotWear::at_frame`] of the layout's).
+    pub wear: &'a [skin::DotWear],
     /// cam0 from this camera: the boom shadow is fixed to the helmet (cam0).
     pub cam0_from_cam: IsometryMatrix3<f64>,
     /// The boom shadow at this instant, if any.
@@ -625,15 +627,10 @@ pub(crate) fn shade(scene: &Scene<'_>, params: &SynthParams) -> View {
         None => [params.ink_albedo as f32; 3],
     };
     for (k, (c, n)) in scene.markers.iter().enumerate() {
-        let wear = scene
-            .skin
-            .wear
-            .get(k)
-            .copied()
-            .unwrap_or(skin::DotWear::Intact);
+        let wear = scene.wear.get(k).copied().unwrap_or(skin::DotWear::Intact);
         // Smear axes: e1 along the smear (semi-axis r·stretch), e2 across (r/√stretch).
         let smear = match wear {
-            skin::DotWear::Wiped => continue,
+            skin::DotWear::Wiped { .. } => continue,
             skin::DotWear::Intact => None,
             skin::DotWear::Smudged {
                 toward,

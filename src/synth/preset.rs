@@ -132,14 +132,16 @@ pub fn preset(name: &str) -> Option<Preset> {
         },
         "wiped-moles" => Preset {
             name: "wiped-moles",
-            summary: "near-face with 8 dots wiped off and a mole as dark as the ink beside \
-                      each (0.2-1.5 mm from where its rim was), among freckles: a missing \
-                      marker must stay missing",
+            summary: "near-face with 8 dots wiped off, each at a frame from 0 to 40 (mid-take, \
+                      after it was tracked), and a mole as dark as the ink beside each \
+                      (0.2-1.5 mm from where its rim was), among freckles: a missing marker \
+                      must stay missing",
             params: SynthParams {
                 skin: SkinParams {
                     freckles: 200,
                     wiped_dots: 8,
                     moles_beside_wiped_dots: true,
+                    wipe_frames: (0, 40),
                     ..SkinParams::default()
                 },
                 ..near_params()

@@ -286,6 +286,8 @@ pub fn render_session(
 
     let render_frame = |f: usize| -> Result<FrameTruth, SynthError> {
         let t = f as f64 / params.fps;
+        // Each marker's wear in this frame (a dot wiped off mid-take is intact before).
+        let wear: Vec<DotWear> = skin_layout.wear.iter().map(|w| w.at_frame(f)).collect();
         let samples = params.motion_blur_samples;
         let mut radiance: [Vec<f32>; 2] = [Vec::new(), Vec::new()];
         let mut centre_views: Vec<Option<raster::Fragments>> = vec![None, None];
@@ -347,6 +349,7 @@ pub fn render_session(
                         .collect(),
                     rest_positions: &neutral.positions,
                     skin: &skin_layout,
+                    wear: &wear,
                     cam0_from_cam: if c == 0 {
                         IsometryMatrix3::identity()
                     } else {
@@ -422,7 +425,7 @@ pub fn render_session(
         let mut projections = String::new();
         let mut visible = [0usize; 4];
         for (k, m) in layout.markers.iter().enumerate() {
-            let wiped = skin_layout.wear.get(k) == Some(&DotWear::Wiped);
+            let wiped = matches!(wear.get(k), Some(DotWear::Wiped { .. }));
             let v = m.vertex as usize;
             let p = positions[v];
             let mut vis = [false; 2];
@@ -502,6 +505,7 @@ pub fn render_session(
             neutral,
             layout,
             &skin_layout,
+            &wear,
             centre_views.as_slice(),
             params.marker_radius_mm,
         );
@@ -699,8 +703,8 @@ fn place_skin(
 
 /// Rows of `gt/distractors.csv` for one frame: every freckle, mole and hair stroke
 /// (centre; `diameter_px` the projected major axis of a spot, or a stroke's length) and
-/// every smudged or wiped dot (with its marker name) whose centre is visible and whose
-/// extent is mostly unoccluded and inside the image.
+/// every dot smudged or wiped in this frame (`wear`, with its marker name) whose centre is
+/// visible and whose extent is mostly unoccluded and inside the image.
 #[allow(clippy::too_many_arguments)]
 fn distractor_rows(
     f: usize,
@@ -712,11 +716,12 @@ fn distractor_rows(
     neutral: &crate::mesh::Mesh,
     layout: &MarkerLayout,
     skin_layout: &SkinLayout,
+    wear: &[DotWear],
     views: &[Option<raster::Fragments>],
     dot_radius_mm: f64,
 ) -> String {
     let mut rows = String::new();
-    if skin_layout.features.is_empty() && skin_layout.wear.iter().all(|w| *w == DotWear::Intact) {
+    if skin_layout.features.is_empty() && wear.iter().all(|w| *w == DotWear::Intact) {
         return rows;
     }
     for (c, cam) in cams.iter().enumerate() {
@@ -768,7 +773,7 @@ fn distractor_rows(
             });
             row(feat.kind.name(), centre, normal, feat.radius_mm, length, "");
         }
-        for (m, wear) in layout.markers.iter().zip(&skin_layout.wear) {
+        for (m, wear) in layout.markers.iter().zip(wear) {
             if let Some(kind) = wear.name() {
                 let v = m.vertex as usize;
                 row(kind, positions[v], normals[v], dot_radius_mm, None, &m.name);
@@ -1093,6 +1098,60 @@ mod tests {
             }
         }
         assert!(wiped >= 3 && smudged >= 3, "{wiped} {smudged}");
+    }
+
+    #[test]
+    fn a_dot_wiped_mid_take_is_inked_before_its_frame_and_gone_after() {
+        let wiped_at = |frames: (usize, usize)| SynthParams {
+            skin: SkinParams {
+                wiped_dots: 10,
+                wipe_frames: frames,
+                ..SkinParams::default()
+            },
+            ..base()
+        };
+        let clean = render(&base(), 2);
+        let from_start = render(&wiped_at((0, 0)), 2);
+        let mid_take = render(&wiped_at((1, 1)), 2);
+        // Frame 0: the dots wiped off on frame 1 are still there, as in the clean take.
+        assert_eq!(
+            image(mid_take.path(), 0, 0).samples,
+            image(clean.path(), 0, 0).samples
+        );
+        assert_ne!(
+            image(from_start.path(), 0, 0).samples,
+            image(clean.path(), 0, 0).samples
+        );
+        // Frame 1: gone, as if wiped from the start.
+        assert_eq!(
+            image(mid_take.path(), 0, 1).samples,
+            image(from_start.path(), 0, 1).samples
+        );
+        // The ground truth follows: no wiped dot on frame 0, and each wiped dot of frame 1
+        // not detectable.
+        let gone: Vec<HashMap<String, String>> = rows(mid_take.path().join("gt/distractors.csv"))
+            .into_iter()
+            .filter(|r| r["kind"] == "wiped_dot")
+            .collect();
+        assert!(gone.iter().all(|r| r["frame"] == "1"));
+        assert!(gone.len() >= 3, "{} wiped dots seen", gone.len());
+        let projections = rows(mid_take.path().join("gt/projections.csv"));
+        for r in &gone {
+            let p = projections
+                .iter()
+                .find(|p| {
+                    p["frame"] == "1" && p["marker"] == r["marker"] && p["camera"] == r["camera"]
+                })
+                .unwrap();
+            assert_eq!(p["detectable"], "0", "{p:?}");
+        }
+        let markers: Vec<&String> = gone.iter().map(|r| &r["marker"]).collect();
+        let detectable_before = projections
+            .iter()
+            .filter(|p| p["frame"] == "0" && markers.contains(&&p["marker"]))
+            .filter(|p| p["detectable"] == "1")
+            .count();
+        assert!(detectable_before >= 3, "{detectable_before}");
     }
 
     fn rows_by_marker(dir: &Path) -> HashMap<(String, String), HashMap<String, String>> {

@@ -84,6 +84,11 @@ pub struct SkinParams {
     /// in [`SkinParams::mole_diameter_mm`]): the spot a labeler must not take for the
     /// missing marker. Default false.
     pub moles_beside_wiped_dots: bool,
+    /// Frames `(first, last)` between which each wiped dot is wiped off, drawn uniformly
+    /// per dot: before its frame it is an intact dot (an actor wiping sweat off mid-take),
+    /// so a labeler has tracked the marker beside its mole before it vanishes. Default
+    /// `(0, 0)`: wiped from the first frame.
+    pub wipe_frames: (usize, usize),
 }
 
 impl Default for SkinParams {
@@ -113,6 +118,7 @@ impl Default for SkinParams {
             smudged_dots: 0,
             wiped_dots: 0,
             moles_beside_wiped_dots: false,
+            wipe_frames: (0, 0),
         }
     }
 }
@@ -172,6 +178,7 @@ impl SkinParams {
             "flicker_hz",
         )?;
         check((0.0..=1.0).contains(&self.boom_shadow), "boom_shadow")?;
+        check(self.wipe_frames.0 <= self.wipe_frames.1, "wipe_frames")?;
         check(
             self.boom_width_mm > 0.0 && self.boom_width_mm < 500.0,
             "boom_width_mm",
@@ -304,8 +311,12 @@ pub enum DotWear {
         /// Remaining ink density (0..1).
         opacity: f64,
     },
-    /// Wiped off: no ink left, not detectable.
-    Wiped,
+    /// Wiped off from frame `from_frame` on: no ink left, not detectable (an intact dot
+    /// before it).
+    Wiped {
+        /// The first frame without the dot.
+        from_frame: usize,
+    },
 }
 
 impl DotWear {
@@ -314,7 +325,15 @@ impl DotWear {
         match self {
             DotWear::Intact => None,
             DotWear::Smudged { .. } => Some("smudged_dot"),
-            DotWear::Wiped => Some("wiped_dot"),
+            DotWear::Wiped { .. } => Some("wiped_dot"),
+        }
+    }
+
+    /// The wear in frame `frame`: a dot wiped off later is intact until then.
+    pub fn at_frame(self, frame: usize) -> DotWear {
+        match self {
+            DotWear::Wiped { from_frame } if frame < from_frame => DotWear::Intact,
+            wear => wear,
         }
     }
 }
@@ -699,12 +718,12 @@ pub fn place(
                 opacity: rng.random_range(0.45..=0.75),
             }
         } else {
-            DotWear::Wiped
+            DotWear::Wiped { from_frame: 0 }
         };
     }
     if params.moles_beside_wiped_dots {
         for (m, wear) in layout.wear.iter().enumerate() {
-            if *wear != DotWear::Wiped {
+            if !matches!(wear, DotWear::Wiped { .. }) {
                 continue;
             }
             let radius = 0.5 * uniform(&mut rng, params.mole_diameter_mm);
@@ -716,6 +735,17 @@ pub fn place(
                 .step(&from, &dir, surface.dot_radius_mm + gap + radius)
                 .ok_or_else(no_skin)?;
             layout.features.push(mole(at, radius));
+        }
+    }
+    // The frames the dots are wiped at, from a stream of their own, so that wiping
+    // mid-take moves nothing else on the skin.
+    let (first, last) = params.wipe_frames;
+    if last > 0 {
+        let mut frames = StdRng::seed_from_u64(seed ^ 0x717e_f4a3_e5d0_7c11);
+        for wear in &mut layout.wear {
+            if let DotWear::Wiped { from_frame } = wear {
+                *from_frame = frames.random_range(first..=last);
+            }
         }
     }
     Ok(layout)
