@@ -132,8 +132,8 @@ pub fn preset(name: &str) -> Option<Preset> {
         },
         "wiped-moles" => Preset {
             name: "wiped-moles",
-            summary: "near-face with 8 dots wiped off, each at a frame from 0 to 40 (mid-take, \
-                      after it was tracked), and a mole as dark as the ink beside each \
+            summary: "near-face with 8 dots wiped off, one from the first frame and the others \
+                      at frames up to 40 (mid-take, after they were tracked), and a mole as dark as the ink beside each \
                       (0.2-1.5 mm from where its rim was), among freckles: a missing marker \
                       must stay missing",
             params: SynthParams {

@@ -84,10 +84,11 @@ pub struct SkinParams {
     /// in [`SkinParams::mole_diameter_mm`]): the spot a labeler must not take for the
     /// missing marker. Default false.
     pub moles_beside_wiped_dots: bool,
-    /// Frames `(first, last)` between which each wiped dot is wiped off, drawn uniformly
-    /// per dot: before its frame it is an intact dot (an actor wiping sweat off mid-take),
-    /// so a labeler has tracked the marker beside its mole before it vanishes. Default
-    /// `(0, 0)`: wiped from the first frame.
+    /// Frames `(first, last)` over which the wiped dots are wiped off, evenly spread: the
+    /// first wiped dot is gone from frame `first`, the last from frame `last`. Before its
+    /// frame a dot is intact (an actor wiping sweat off mid-take), so a labeler has tracked
+    /// the marker beside its mole before it vanishes. Default `(0, 0)`: all wiped from the
+    /// first frame.
     pub wipe_frames: (usize, usize),
 }
 
@@ -737,16 +738,20 @@ pub fn place(
             layout.features.push(mole(at, radius));
         }
     }
-    // The frames the dots are wiped at, from a stream of their own, so that wiping
-    // mid-take moves nothing else on the skin.
+    // The frames the dots are wiped at, in the order they were chosen (no random draw:
+    // wiping mid-take moves nothing else on the skin).
     let (first, last) = params.wipe_frames;
-    if last > 0 {
-        let mut frames = StdRng::seed_from_u64(seed ^ 0x717e_f4a3_e5d0_7c11);
-        for wear in &mut layout.wear {
-            if let DotWear::Wiped { from_frame } = wear {
-                *from_frame = frames.random_range(first..=last);
-            }
-        }
+    let wiped: Vec<usize> = order
+        .iter()
+        .skip(params.smudged_dots)
+        .take(params.wiped_dots)
+        .copied()
+        .collect();
+    let spread = (last - first) as f64 / wiped.len().saturating_sub(1).max(1) as f64;
+    for (j, &m) in wiped.iter().enumerate() {
+        layout.wear[m] = DotWear::Wiped {
+            from_frame: first + (j as f64 * spread).round() as usize,
+        };
     }
     Ok(layout)
 }
