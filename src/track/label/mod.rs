@@ -53,7 +53,10 @@
 //! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
 //! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
-//! it is not taken for it ([`Labeler::stood_beside`]). When too few
+//! it is not taken for it ([`Labeler::stood_beside`]). A marker whose blobs stay smaller
+//! than a whole dot of its paint can look, frame after frame, is not on its dot (a
+//! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
+//! it is labeled only on a blob of a dot's size. When too few
 //! markers are labeled for a few frames, or the head pose does not fit the labels, the
 //! tracks are dropped and the next frame is acquired again.
 //!
@@ -504,6 +507,9 @@ struct Track {
     frames_since_seen: Option<usize>,
     /// The marker's last label was a worn dot ([`LabelParams::worn_dots`]).
     worn: bool,
+    /// Labeled frames in a row whose blobs were smaller than a whole dot can look there
+    /// ([`Labeler::blob_size_ratio`] under [`tracking::SMALL_BLOB_RATIO`]).
+    small_blob_frames: usize,
 }
 
 /// Tracks and labels markers frame by frame (see the module docs).
@@ -943,6 +949,11 @@ impl Labeler {
                 .map(|l| l.bundle.reprojection_px),
         );
         let mut seen = vec![false; m];
+        let mut small = vec![false; m];
+        for l in &pass.labels {
+            small[l.marker] =
+                self.blob_size_ratio(&l.bundle.point_in_cam0, l.det) < tracking::SMALL_BLOB_RATIO;
+        }
         let inverse = pose.inverse();
         for l in &pass.labels {
             let track = &mut self.tracks[l.marker];
@@ -955,6 +966,11 @@ impl Labeler {
             };
             track.head = head;
             track.worn = l.worn;
+            track.small_blob_frames = if small[l.marker] {
+                track.small_blob_frames + 1
+            } else {
+                0
+            };
             seen[l.marker] = true;
             stats.labeled += 1;
             stats.reacquired += usize::from(reacquired);
@@ -1125,6 +1141,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             velocity: Vector3::zeros(),
             frames_since_seen: None,
             worn: false,
+            small_blob_frames: 0,
         })
         .collect()
 }
