@@ -191,7 +191,9 @@ pub struct LabelParams {
     /// back after a gap): with no track to vouch for it, the blob must look like a whole
     /// dot. Freckles and pores (too small), a dot merged with
     /// a mole beside it, or a dot smeared off its place (too large) are not taken for a
-    /// marker that was never seen. Default 0.7 to 1.35.
+    /// marker that was never seen. Default 0.8 to 1.35 (whole dots measure 0.87 or more of
+    /// the smallest size on clean skin; 0.7 let a freckle 0.65 of a dot, where a dot was
+    /// wiped off, be taken at acquisition).
     pub first_sighting_size_ratio: (f64, f64),
     /// With the skin's normal at each marker ([`Labeler::set_marker_normals`]): a blob is
     /// a marker's only when its roundness is at least this share of the roundness its
@@ -300,7 +302,7 @@ impl Default for LabelParams {
             window_margin_px: 6.0,
             dot_diameter_mm: 2.4,
             dot_size_ratio: (0.5, 1.8),
-            first_sighting_size_ratio: (0.7, 1.35),
+            first_sighting_size_ratio: (0.8, 1.35),
             min_roundness_ratio: 0.7,
             normal_slack_deg: 25.0,
             first_sighting_min_fill: 0.6,
