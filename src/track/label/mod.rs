@@ -56,7 +56,7 @@
 //! it is not taken for it ([`Labeler::stood_beside`]). A marker whose blobs stay smaller
 //! than a whole dot of its paint can look, frame after frame, is not on its dot (a
 //! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
-//! it is labeled only on a blob of a dot's size. When too few
+//! it is labeled only on a blob a first sighting may have. When too few
 //! markers are labeled for a few frames, or the head pose does not fit the labels, the
 //! tracks are dropped and the next frame is acquired again.
 //!
@@ -509,8 +509,8 @@ struct Track {
     frames_since_seen: Option<usize>,
     /// The marker's last label was a worn dot ([`LabelParams::worn_dots`]).
     worn: bool,
-    /// Labeled frames in a row whose blobs were smaller than a whole dot can look there
-    /// ([`Labeler::blob_size_ratio`] under [`tracking::SMALL_BLOB_RATIO`]).
+    /// Labeled frames in a row whose blobs were smaller than a first sighting may be
+    /// ([`Labeler::smaller_than_a_whole_dot`]).
     small_blob_frames: usize,
 }
 
@@ -953,8 +953,7 @@ impl Labeler {
         let mut seen = vec![false; m];
         let mut small = vec![false; m];
         for l in &pass.labels {
-            small[l.marker] =
-                self.blob_size_ratio(&l.bundle.point_in_cam0, l.det) < tracking::SMALL_BLOB_RATIO;
+            small[l.marker] = self.smaller_than_a_whole_dot(&l.bundle.point_in_cam0, l.det);
         }
         let inverse = pose.inverse();
         for l in &pass.labels {

@@ -9,39 +9,20 @@ use super::{Label, Labeler, PassResult, Prediction};
 use crate::align::horn_alignment;
 use crate::stereo::{Bundle, TriangulateParams, triangulate};
 
-/// A blob under this share of the smallest size a whole dot can look
-/// ([`Labeler::blob_size_ratio`]) is small for the marker's dot: a partly hidden dot, or
-/// not the dot. Whole, unoccluded dots on every synth preset and on seven set-ups nothing
-/// was tuned on measure 0.87 or more (before the rim's 2 px are added); on cluttered skin,
-/// where hair cuts dots, a few fall lower for at most three frames in a row.
-pub(super) const SMALL_BLOB_RATIO: f64 = 0.8;
-
-/// After this many labels in a row on small blobs ([`SMALL_BLOB_RATIO`]) a marker is
-/// labeled only on a blob of a dot's size: a dot hidden in part by a lip or a hair is
-/// small for a few frames, a freckle where a dot was wiped off stays small.
+/// After this many labels in a row on blobs smaller than a first sighting may be
+/// ([`Labeler::smaller_than_a_whole_dot`]) a marker is labeled only on a blob of a whole
+/// dot's size: a dot hidden in part by a lip or a hair is small for a few frames (on every
+/// synth preset and on seven set-ups nothing was tuned on, three at most, on cluttered
+/// skin where hair cuts dots), a freckle where a dot was wiped off stays small.
 pub(super) const SMALL_BLOB_FRAMES: usize = 4;
 
 impl Labeler {
-    /// The size of detections `det` (cam0, cam1) against the smallest a whole dot at
-    /// `point` can look, in the camera where it is smaller: `(major axis + 2 px) / (D·σ₂)`
-    /// (see [`Labeler::dot_sized`]; the 2 px for the antialiased rim). 1 where a size was
-    /// not measured or the point does not project.
-    pub(super) fn blob_size_ratio(&self, point: &Point3<f64>, det: [usize; 2]) -> f64 {
-        let in_cam1 = self.rig.cam1_from_cam0 * point;
-        let cams = [
-            (&self.rig.cam0, point.coords),
-            (&self.rig.cam1, in_cam1.coords),
-        ];
-        (0..2)
-            .filter_map(|c| {
-                let measured = self.blobs[c].get(det[c])?.diameter_px;
-                let (cam, p) = &cams[c];
-                let (_, j) = cam.project_with_jacobian(p)?;
-                let smallest = self.params.dot_diameter_mm * singular_values(&j).1;
-                let ratio = (measured + 2.0) / smallest;
-                ratio.is_finite().then_some(ratio)
-            })
-            .fold(1.0f64, f64::min)
+    /// Whether detections `det` (cam0, cam1) at `point` are, in either camera, smaller
+    /// than a first sighting may be ([`super::LabelParams::first_sighting_size_ratio`]'s
+    /// lower bound, by [`Labeler::dot_sized`]): a partly hidden dot, or not the dot.
+    pub(super) fn smaller_than_a_whole_dot(&self, point: &Point3<f64>, det: [usize; 2]) -> bool {
+        let lo = self.params.first_sighting_size_ratio.0;
+        !self.dot_sized(point, det, [0.0; 2], (lo, f64::INFINITY))
     }
 
     /// Whether detections `det` (cam0, cam1) are the size of a painted dot at `point` (cam0
@@ -722,7 +703,7 @@ impl Labeler {
         // the marker's blobs have been small for long and so are these.
         let refused = |i: usize, a: usize, b: usize, bundle: &Bundle| {
             let small_for_long = self.tracks[i].small_blob_frames >= SMALL_BLOB_FRAMES
-                && self.blob_size_ratio(&bundle.point_in_cam0, [a, b]) < SMALL_BLOB_RATIO;
+                && self.smaller_than_a_whole_dot(&bundle.point_in_cam0, [a, b]);
             small_for_long
                 || [pixels[0][a], pixels[1][b]]
                     .iter()
