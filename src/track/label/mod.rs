@@ -48,7 +48,11 @@
 //! pass, at their last seen head-frame position carried by the current pose, when that
 //! is elsewhere (neighbours lost with the marker leave the interpolation to farther ones,
 //! which may move differently), among the detections left free and with the markers not
-//! labeled as rivals. The next frame's search windows cover both places.
+//! labeled as rivals. The next frame's search windows cover both places. Their place is
+//! a guess, so a first sighting is not labeled when another pair of free blobs just
+//! beyond its gate (within the ambiguity limit of its own distance, at most twice the
+//! gate) would pass the same checks: a chin dot put 10 px off by far neighbours, beside
+//! a mole of its size, is two blobs that each could be the marker.
 //! Spurious blobs match no prediction, or fail the epipolar and 3D gates. A blob that
 //! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
@@ -223,8 +227,10 @@ pub struct LabelParams {
     /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],
     /// [`LabelParams::first_sighting_min_fill`]) because sweat or a wipe smeared its ink
     /// into a longer ellipse. Such a blob is taken only where the marker's neighbours put
-    /// it, not where its own track does: in both cameras its major axis within
-    /// [`LabelParams::worn_dot_size_ratio`], its minor axis at least
+    /// it, not where its own track does: its major axis within
+    /// [`LabelParams::worn_dot_size_ratio`] in one camera at least (in the other at
+    /// least a whole dot long: a smear along that camera's line of sight), in both its
+    /// minor axis at least
     /// [`LabelParams::worn_dot_min_width_ratio`] of a dot's, and its centre within
     /// [`LabelParams::worn_dot_centre_tolerance`] of the marker's position moved like its
     /// neighbours labeled in the last frame (the last pose's head frame, carried by this

@@ -16,6 +16,12 @@ use crate::stereo::{Bundle, TriangulateParams, triangulate};
 /// skin where hair cuts dots), a freckle where a dot was wiped off stays small.
 pub(super) const SMALL_BLOB_FRAMES: usize = 4;
 
+/// How far beyond its gate a first sighting's rival pair is looked for, as a multiple of
+/// the gate (in the images and in 3D; see `Labeler::label_pass`). A marker coming back is
+/// put by its neighbours, off by several pixels where they are far: on cluttered seed 21 a
+/// chin dot 11-15 px from that place had a mole of its size 4-7 px from it.
+const BEYOND_GATE: f64 = 2.0;
+
 impl Labeler {
     /// Whether detections `det` (cam0, cam1) at `point` are, in either camera, smaller
     /// than a first sighting may be ([`super::LabelParams::first_sighting_size_ratio`]'s
@@ -134,11 +140,14 @@ impl Labeler {
 
     /// Whether detections `det` (cam0, cam1) at pixels `x` are a worn dot of the marker
     /// predicted by `pr` ([`super::LabelParams::worn_dots`]): in both cameras, the blob's
+    /// minor axis at least [`super::LabelParams::worn_dot_min_width_ratio`] of the dot's
+    /// smallest diameter there foreshortened as in [`Labeler::round_enough`], and its
+    /// centre within [`Labeler::worn_dot_tolerance_px`] of the neighbours' pixel; its
     /// major axis within [`super::LabelParams::worn_dot_size_ratio`] of a dot's where the
-    /// neighbours put the marker (as in [`Labeler::dot_sized`]), its minor axis at least
-    /// [`super::LabelParams::worn_dot_min_width_ratio`] of the dot's smallest diameter
-    /// there foreshortened as in [`Labeler::round_enough`], and its centre within
-    /// [`Labeler::worn_dot_tolerance_px`] of the neighbours' pixel.
+    /// neighbours put the marker (as in [`Labeler::dot_sized`]) in one camera at least,
+    /// and in the other, if not, at least as long as a whole dot
+    /// ([`super::LabelParams::first_sighting_size_ratio`]'s lower bound): a smear along
+    /// one camera's line of sight is seen end-on there, about a dot long.
     pub(super) fn worn_dot(&self, pr: &Prediction, det: [usize; 2], x: [Point2<f64>; 2]) -> bool {
         let p = &self.params;
         let Some((point, pixels)) = pr.vouched.filter(|_| pr.may_be_worn) else {
@@ -152,17 +161,18 @@ impl Labeler {
         ];
         let d = p.dot_diameter_mm;
         let (lo, hi) = p.worn_dot_size_ratio;
-        (0..2).all(|c| {
+        let whole = p.first_sighting_size_ratio.0;
+        // Per camera: None when the blob is not the worn dot's, else whether it is longer
+        // than a dot.
+        let views = [0, 1].map(|c| {
             let (Some(blob), Some(at)) = (self.blobs[c].get(det[c]), pixels[c]) else {
-                return false;
+                return None;
             };
             if !(blob.diameter_px.is_finite() && blob.roundness.is_finite()) {
-                return false;
+                return None;
             }
             let (cam, q) = &cams[c];
-            let Some((_, j)) = cam.project_with_jacobian(q) else {
-                return false;
-            };
+            let (_, j) = cam.project_with_jacobian(q)?;
             let (s1, s2) = singular_values(&j);
             let cos = normal.map_or(1.0, |n| {
                 let n = n[c];
@@ -173,11 +183,13 @@ impl Labeler {
             let major = blob.diameter_px;
             let minor = major * blob.roundness;
             let tolerance = 1.0 + p.worn_dot_centre_tolerance * d * s1;
-            major >= lo * d * s1 + 2.0
+            (major >= whole * d * s2 - 2.0
                 && major <= hi * d * s1 + 2.0 + pr.motion_px[c]
                 && minor >= p.worn_dot_min_width_ratio * d * s2 * cos
-                && (x[c] - at).norm() <= tolerance
-        })
+                && (x[c] - at).norm() <= tolerance)
+                .then_some(major >= lo * d * s1 + 2.0)
+        });
+        views.iter().all(Option::is_some) && views.contains(&Some(true))
     }
 
     /// The major axis, pixels, of the largest blob a dot at `point` (cam0 frame) may make
@@ -671,12 +683,13 @@ impl Labeler {
             max_reprojection_px: self.gate.gate_px(),
             ..p.pair.triangulate.clone()
         };
-        let check = |i: usize, a: usize, b: usize| -> Option<(Bundle, bool)> {
+        // The checks of a pair (a, b) for marker i with its 3D gate times `reach`.
+        let check_within = |i: usize, a: usize, b: usize, reach: f64| -> Option<(Bundle, bool)> {
             let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
                 return None;
             };
             let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
-            if (bundle.point_in_cam0 - preds[i].point).norm() > preds[i].gate_mm {
+            if (bundle.point_in_cam0 - preds[i].point).norm() > reach * preds[i].gate_mm {
                 return None;
             }
             let dot =
@@ -698,6 +711,7 @@ impl Labeler {
                     .then_some((bundle, true))
             }
         };
+        let check = |i: usize, a: usize, b: usize| check_within(i, a, b, 1.0);
         // Whether detections (a, b) are never marker i's label, but still a pair that makes
         // its label ambiguous: they stood beside its dot ([`Labeler::stood_beside`]), or
         // the marker's blobs have been small for long and so are these.
@@ -713,6 +727,52 @@ impl Labeler {
                         (Some(x), Some(q)) => self.stood_beside(i, c, *x, q),
                         _ => false,
                     })
+        };
+        // Whether a first sighting on detections (a, b) has a rival pair beyond the gate:
+        // another pair, one of its detections beyond the gate and both within the
+        // ambiguity limit of the label's own distance (`ambiguity_ratio · e +
+        // ambiguity_margin_px`, at most twice the gate), that passes the marker's checks.
+        // A first sighting's gate is a guess (where the neighbours put a marker coming
+        // back is off by several pixels where they are far, at the chin under an open
+        // jaw): a dot just beyond it and a mole of its size inside are two blobs that each
+        // could be the marker.
+        let rival_beyond_gate = |i: usize, a: usize, b: usize, taken: &[Vec<bool>; 2]| {
+            let own = [a, b];
+            let pr = &preds[i];
+            if !pr.first_sighting {
+                return false;
+            }
+            let (Some(q0), Some(q1), Some(x0), Some(x1)) =
+                (pr.pixels[0], pr.pixels[1], pixels[0][a], pixels[1][b])
+            else {
+                return false;
+            };
+            let reach = |q: Point2<f64>, x: Point2<f64>| {
+                (p.ambiguity_ratio * (x - q).norm() + p.ambiguity_margin_px)
+                    .clamp(pr.gate_px, BEYOND_GATE * pr.gate_px)
+            };
+            let near = |c: usize, q: Point2<f64>, r: f64| -> Vec<(usize, bool)> {
+                pixels[c]
+                    .iter()
+                    .enumerate()
+                    .filter(|&(k, _)| k == own[c] || !taken[c][k])
+                    .filter_map(|(k, d)| {
+                        let e = (d.as_ref()? - q).norm();
+                        (e <= r).then_some((k, e > pr.gate_px))
+                    })
+                    .collect()
+            };
+            let (r0, r1) = (reach(q0, x0), reach(q1, x1));
+            let (n0, n1) = (near(0, q0, r0), near(1, q1, r1));
+            let reach_3d = r0.max(r1) / pr.gate_px.max(1e-9);
+            n0.iter().any(|&(a2, out0)| {
+                n1.iter().any(|&(b2, out1)| {
+                    (out0 || out1)
+                        && (a2, b2) != (a, b)
+                        && check_within(i, a2, b2, reach_3d)
+                            .is_some_and(|(bundle, _)| !refused(i, a2, b2, &bundle))
+                })
+            })
         };
         let mut labels = Vec::new();
         let mut used: [Vec<bool>; 2] = [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
@@ -796,6 +856,27 @@ impl Labeler {
                 rejected += 1;
             }
         }
+        // First sightings with a rival pair beyond the gate, among their own detections and
+        // those no other label took, are dropped (not replaced: the rival, beyond the gate,
+        // is no label either).
+        let mut taken: [Vec<bool>; 2] =
+            [vec![false; pixels[0].len()], vec![false; pixels[1].len()]];
+        for l in &labels {
+            taken[0][l.det[0]] = true;
+            taken[1][l.det[1]] = true;
+        }
+        let before = labels.len();
+        labels.retain(|l| {
+            let doubt = rival_beyond_gate(l.marker, l.det[0], l.det[1], &taken);
+            if doubt {
+                tracing::trace!(
+                    marker = l.marker,
+                    "a first sighting with a rival beyond the gate"
+                );
+            }
+            !doubt
+        });
+        rejected += before - labels.len();
         PassResult {
             labels,
             paired,
