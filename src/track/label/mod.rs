@@ -602,6 +602,10 @@ struct Prediction {
     /// A worn dot may be taken for the marker: worn dots are on and the marker was not
     /// labeled in the last frame, or was on a worn dot.
     may_be_worn: bool,
+    /// For a marker coming back (labeled before, not in the last frame): the pixels of
+    /// where it was last labeled, in the head's frame, under this pass's pose (see
+    /// [`Labeler::stood_beside`]).
+    last_seen: Option<StereoPixels>,
 }
 
 /// A frame's detections as the next frame sees them (see `Labeler::label_sudden_moves`).

@@ -288,7 +288,10 @@ impl Labeler {
                         (point, self.project_both(&point))
                     })
                 };
+                let last_seen = matches!(t.frames_since_seen, Some(n) if n > 0)
+                    .then(|| self.project_both(&(pose * t.head)));
                 Prediction {
+                    last_seen,
                     point,
                     pixels,
                     gate_px,
@@ -505,7 +508,9 @@ impl Labeler {
 
     /// Whether the blob at `x` in camera `c`, a candidate of marker `i` predicted at `q`,
     /// is one that stood beside the marker's dot the last time the marker was labeled: its
-    /// offset from the prediction is within `min(g/2 + |b|/10, |b|/2)` of a remembered
+    /// offset from the prediction (`Labeler::label_pass` also asks with `q` where a marker
+    /// coming back was last labeled, under this frame's pose: its neighbours' place may be
+    /// off by more than the tolerance) is within `min(g/2 + |b|/10, |b|/2)` of a remembered
     /// offset `b` (`g` the tight gate; the tenth for the skin's stretch and the head's turn
     /// since, the half so that the blob is nearer to where the mole was than to the dot's
     /// own place). A mole, a freckle or a neighbour's dot that the marker's dot had beside
@@ -718,14 +723,19 @@ impl Labeler {
         let refused = |i: usize, a: usize, b: usize, bundle: &Bundle| {
             let small_for_long = self.tracks[i].small_blob_frames >= SMALL_BLOB_FRAMES
                 && self.smaller_than_a_whole_dot(&bundle.point_in_cam0, [a, b]);
+            let last_seen = preds[i].last_seen.unwrap_or_default();
             small_for_long
                 || [pixels[0][a], pixels[1][b]]
                     .iter()
-                    .zip(preds[i].pixels)
+                    .zip(preds[i].pixels.iter().zip(last_seen))
                     .enumerate()
-                    .any(|(c, (x, q))| match (x, q) {
-                        (Some(x), Some(q)) => self.stood_beside(i, c, *x, q),
-                        _ => false,
+                    .any(|(c, (x, (q, l)))| {
+                        x.is_some_and(|x| {
+                            [*q, l]
+                                .iter()
+                                .flatten()
+                                .any(|&q| self.stood_beside(i, c, x, q))
+                        })
                     })
         };
         // Whether a first sighting on detections (a, b) has a rival pair beyond the gate:
