@@ -1124,16 +1124,54 @@ fn one_neighbour_moving_unlike_the_rest_does_not_move_where_the_neighbours_put_a
 
 #[test]
 fn a_marker_coming_back_beside_a_dot_like_blob_is_not_labeled_on_either_while_in_doubt() {
-    // Markers whose skin moves 12 px from where their still neighbours put them (a chin
-    // under an opening jaw, its neighbours far), then hide for 20 frames. As they come
-    // back, a blob the size and shape of a dot shows 6 px on the other side of that place
-    // (a mole the dot's blob had merged with, a fleck of ink): inside the marker's gate
-    // (10 px), with the dot just beyond it. Two blobs that each could be the marker, the
-    // nearer the wrong one: neither is taken.
+    // As they come back, a blob the size and shape of a dot shows 6 px on the other side
+    // of where their neighbours put them (a mole the dot's blob had merged with, a fleck
+    // of ink): inside the marker's gate (10 px), with the dot just beyond it. Two blobs
+    // that each could be the marker, the nearer the wrong one: neither is taken.
+    let gate = LabelParams::default().max_gap_gate_px;
+    let (wrong, blob_in_gate) =
+        markers_moved_from_their_neighbours_then_hidden((11, 111), |f| f >= 30, |_| true, gate);
+    assert!(
+        blob_in_gate >= 3 * 15,
+        "{blob_in_gate} blob-frames in the gate"
+    );
+    assert_eq!(wrong, 0, "wrong labels");
+}
+
+#[test]
+fn a_blob_that_stood_beside_a_marker_is_not_taken_where_its_neighbours_put_it_off() {
+    // The blob is there from frame 5 on: 12-18 px from the dot while it was seen. Coming
+    // back, it is 6 px from where the neighbours put the marker, its offset from that
+    // place nothing like the one it had from the dot; from where the marker was last
+    // labeled, it is.
+    let (wrong, blob_in_gate) = markers_moved_from_their_neighbours_then_hidden(
+        (12, 112),
+        |f| f >= 5,
+        |f| (10..30).contains(&f),
+        7.0,
+    );
+    assert!(
+        blob_in_gate >= 3 * 20,
+        "{blob_in_gate} blob-frames in the gate"
+    );
+    assert_eq!(wrong, 0, "wrong labels");
+}
+
+/// Four markers whose skin moves 12 px (cam0) from where their still neighbours put them
+/// over frames 0-10 (a chin under an opening jaw, its neighbours far), hidden over frames
+/// 10-30 and back until frame 45, with a blob the size and shape of a dot 6 px on the other
+/// side of the neighbours' place in the frames `shown`. Wrong labels over the 45 frames,
+/// and the frames `counted` in which a blob lay within `reach_px` of that place.
+fn markers_moved_from_their_neighbours_then_hidden(
+    seeds: (u64, u64),
+    shown: impl Fn(usize) -> bool,
+    counted: impl Fn(usize) -> bool,
+    reach_px: f64,
+) -> (usize, usize) {
     let rig = crate::camera::default_helmet_rig().unwrap();
-    let (layout, pts) = face(11);
+    let (layout, pts) = face(seeds.0);
     let mut lab = labeler(&layout, &pts);
-    let mut rng = Rng::new(111);
+    let mut rng = Rng::new(seeds.1);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let moving = [3, 19, 44, 71];
     // Per marker: the skin's way in the head frame, and 1 mm on it in cam0 pixels.
@@ -1146,7 +1184,7 @@ fn a_marker_coming_back_beside_a_dot_like_blob_is_not_labeled_on_either_while_in
         })
         .collect();
     let hiding = 10..30;
-    let (mut wrong_total, mut blob_in_gate) = (0, 0);
+    let (mut wrong_total, mut blob_in_reach) = (0, 0);
     for f in 0..45usize {
         let progress = f.min(10) as f64 / 10.0;
         let mut moved = pts.clone();
@@ -1159,16 +1197,13 @@ fn a_marker_coming_back_beside_a_dot_like_blob_is_not_labeled_on_either_while_in
             Vec::new()
         };
         let mut obs = observe(&rig, &pose, &moved, &hide, 0.15, 0, &mut rng);
-        if f >= hiding.end {
+        if shown(f) {
             for (&k, &(side, px_per_mm)) in moving.iter().zip(&ways) {
                 let blob = pts[k] - side * (6.0 / px_per_mm);
                 let at = add_blob(&rig, &pose, &mut obs, &blob, |dot_px| (dot_px, 0.9, 1.0));
                 let place = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
-                blob_in_gate += usize::from(
-                    f >= hiding.end
-                        && at[0].is_some_and(|px| {
-                            (px - place).norm() < LabelParams::default().max_gap_gate_px
-                        }),
+                blob_in_reach += usize::from(
+                    counted(f) && at[0].is_some_and(|px| (px - place).norm() < reach_px),
                 );
             }
         }
@@ -1176,68 +1211,7 @@ fn a_marker_coming_back_beside_a_dot_like_blob_is_not_labeled_on_either_while_in
         let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         wrong_total += count(&out, &truth).1;
     }
-    assert!(
-        blob_in_gate >= 3 * 15,
-        "{blob_in_gate} blob-frames in the gate"
-    );
-    assert_eq!(wrong_total, 0, "wrong labels");
-}
-
-#[test]
-fn a_blob_that_stood_beside_a_marker_is_not_taken_where_its_neighbours_put_it_off() {
-    // Markers whose skin moves 12 px from where their still neighbours put them (a chin
-    // under an opening jaw, its neighbours far), then hide for 20 frames, with a blob the
-    // size and shape of a dot 6 px on the other side of that place from frame 5 on: 12-18
-    // px from the dot while it was seen. Coming back, the blob is 6 px from where the
-    // neighbours put the marker, its offset from that place nothing like the one it had
-    // from the dot; from where the marker was last labeled, it is.
-    let rig = crate::camera::default_helmet_rig().unwrap();
-    let (layout, pts) = face(12);
-    let mut lab = labeler(&layout, &pts);
-    let mut rng = Rng::new(112);
-    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let moving = [5, 21, 46, 73];
-    let ways: Vec<(Vector3<f64>, f64)> = moving
-        .iter()
-        .map(|&k| {
-            let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
-            let px = |p: Point3<f64>| rig.cam0.project(&(pose * p).coords).unwrap();
-            (side, (px(pts[k] + side) - px(pts[k])).norm())
-        })
-        .collect();
-    let hiding = 10..30;
-    let (mut wrong_total, mut blob_in_gate) = (0, 0);
-    for f in 0..45usize {
-        let progress = f.min(10) as f64 / 10.0;
-        let mut moved = pts.clone();
-        for (&k, &(side, px_per_mm)) in moving.iter().zip(&ways) {
-            moved[k] = pts[k] + side * (12.0 / px_per_mm * progress);
-        }
-        let hide: Vec<usize> = if hiding.contains(&f) {
-            moving.to_vec()
-        } else {
-            Vec::new()
-        };
-        let mut obs = observe(&rig, &pose, &moved, &hide, 0.15, 0, &mut rng);
-        if f >= 5 {
-            for (&k, &(side, px_per_mm)) in moving.iter().zip(&ways) {
-                let blob = pts[k] - side * (6.0 / px_per_mm);
-                let at = add_blob(&rig, &pose, &mut obs, &blob, |dot_px| (dot_px, 0.9, 1.0));
-                let place = rig.cam0.project(&(pose * pts[k]).coords).unwrap();
-                blob_in_gate += usize::from(
-                    hiding.contains(&f) && at[0].is_some_and(|px| (px - place).norm() < 7.0),
-                );
-            }
-        }
-        let truth = [obs[0].1.clone(), obs[1].1.clone()];
-        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
-        wrong_total += count(&out, &truth).1;
-    }
-    assert!(
-        blob_in_gate >= 3 * 20,
-        "{blob_in_gate} blob-frames in the gate"
-    );
-    assert_eq!(wrong_total, 0, "wrong labels");
+    (wrong_total, blob_in_reach)
 }
 
 #[test]
