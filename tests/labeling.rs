@@ -228,6 +228,8 @@ fn labels_a_300_frame_session_without_swaps() {
     let (mut correct_visible, mut correct_detected) = (0usize, 0usize);
     let (mut sq_err, mut reacquired, mut acquiring_frames) = (0.0, 0usize, 0usize);
     let mut missed: HashMap<(usize, usize), (usize, usize)> = HashMap::new();
+    // Per marker: detectable observations not labeled right, and the first frame of them.
+    let mut unlabeled: HashMap<usize, (usize, usize)> = HashMap::new();
     // Misses per camera: by detector reason (and whether ground truth calls the dot
     // detectable), by view angle and by projected minor axis.
     const ANGLE_EDGES: [f64; 5] = [60.0, 70.0, 72.5, 75.0, 77.5];
@@ -336,6 +338,12 @@ fn labels_a_300_frame_session_without_swaps() {
                     vis_minor[bin(t.minor_axis_px, &MINOR_EDGES)] += 1;
                 }
             }
+            let right = labels.markers[k].as_ref().is_some_and(|m| {
+                near[0][m.detections[0]] == Some(k) && near[1][m.detections[1]] == Some(k)
+            });
+            if detectable && !right {
+                unlabeled.entry(k).or_insert((0, frame.index.as_usize())).0 += 1;
+            }
             if let Some(m) = &labels.markers[k] {
                 let ok = near[0][m.detections[0]] == Some(k) && near[1][m.detections[1]] == Some(k);
                 if ok {
@@ -371,6 +379,14 @@ fn labels_a_300_frame_session_without_swaps() {
         eprintln!(
             "missed {} in cam{c}: {n} frames ({near} with a blob within 5 px)",
             layout.markers[*k].name
+        );
+    }
+    let mut worst: Vec<_> = unlabeled.iter().collect();
+    worst.sort_by_key(|b| (std::cmp::Reverse(b.1.0), b.0));
+    for (k, (n, first)) in worst.iter().take(10) {
+        eprintln!(
+            "not labeled right while detectable: {} in {n} frames (from frame {first})",
+            layout.markers[**k].name
         );
     }
     let total_missed: usize = miss_angle.iter().sum();
