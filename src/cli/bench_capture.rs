@@ -368,6 +368,7 @@ fn acquisition_with_clutter(
                         contrast_dn: rng.random_range(20.0..120.0),
                         quality: rng.random_range(0.2..0.8),
                         diameter_px: diameter,
+                        axis_rad: rng.random_range(-1.5..1.5),
                     });
                 }
                 d

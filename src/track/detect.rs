@@ -239,6 +239,9 @@ pub struct Detection {
     /// pixels (a dot's diameter, about a pixel more for the antialiased rim, whatever its
     /// foreshortening).
     pub diameter_px: f64,
+    /// Direction of that major axis, radians from the image's +x axis towards +y, in
+    /// `[−π/2, π/2]` (meaningless for a round blob); NaN when not measured.
+    pub axis_rad: f64,
 }
 
 /// Why a blob of candidate pixels is not a dot.
@@ -1285,10 +1288,10 @@ fn split_at(
     });
 }
 
-/// Filters and measures one blob; the reason when it fails a filter.
 /// The eigenvalues `λ₁ ≥ λ₂` of the covariance of a set of pixels, each pixel counted as
-/// its square (`+1/12` per axis).
-fn second_moments(pixels: &[(usize, usize, u8)]) -> (f64, f64) {
+/// its square (`+1/12` per axis), and the direction of `λ₁`'s eigenvector (radians from
+/// +x towards +y, in `[−π/2, π/2]`).
+fn second_moments(pixels: &[(usize, usize, u8)]) -> (f64, f64, f64) {
     let n = pixels.len() as f64;
     let (mut mx, mut my) = (0.0, 0.0);
     for &(x, y, _) in pixels {
@@ -1308,16 +1311,21 @@ fn second_moments(pixels: &[(usize, usize, u8)]) -> (f64, f64) {
     let (a, b, cc) = (sxx / n + 1.0 / 12.0, syy / n + 1.0 / 12.0, sxy / n);
     let tr = a + b;
     let disc = ((a - b).powi(2) / 4.0 + cc * cc).sqrt();
-    (tr / 2.0 + disc, tr / 2.0 - disc)
+    (
+        tr / 2.0 + disc,
+        tr / 2.0 - disc,
+        0.5 * (2.0 * cc).atan2(a - b),
+    )
 }
 
+/// Filters and measures one blob; the reason when it fails a filter.
 fn measure_blob(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
     params: &DetectParams,
 ) -> Result<Detection, RejectReason> {
     let (w, h) = (image.width as usize, image.height as usize);
-    let (l1, l2) = second_moments(pixels);
+    let (l1, l2, axis_rad) = second_moments(pixels);
     let roundness = if l1 > 0.0 {
         (l2.max(0.0) / l1).sqrt()
     } else {
@@ -1432,6 +1440,7 @@ fn measure_blob(
         contrast_dn: peak,
         quality: quality.clamp(0.0, 1.0),
         diameter_px: diameter,
+        axis_rad,
     })
 }
 

@@ -57,7 +57,10 @@
 //! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
 //! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
-//! it is not taken for it ([`Labeler::stood_beside`]). A marker whose blobs stay smaller
+//! it is not taken for it ([`Labeler::stood_beside`]). Nor is a mole that was one blob
+//! with the dot: a labeled blob whose second moments are a dot's plus one direction's
+//! (two lobes) has its far lobe, the one away from where the neighbours put the dot,
+//! remembered ([`Labeler::in_far_lobe`]). A marker whose blobs stay smaller
 //! than a whole dot of its paint can look, frame after frame, is not on its dot (a
 //! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
 //! it is labeled only on a blob a first sighting may have. When too few
@@ -559,6 +562,9 @@ pub struct Labeler {
     /// tight gate away: nearer ones are pieces of the dot). Kept while the marker is
     /// missing; see [`Labeler::stood_beside`].
     beside: Vec<[Vec<Vector2<f64>>; 2]>,
+    /// Per marker and camera, the lobes of its blob the last time it was labeled, when
+    /// that blob was its dot merged with another (see [`Labeler::in_far_lobe`]).
+    lobes: Vec<[Option<Lobes>; 2]>,
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
@@ -606,6 +612,20 @@ struct Prediction {
     /// where it was last labeled, in the head's frame, under this pass's pose (see
     /// [`Labeler::stood_beside`]).
     last_seen: Option<StereoPixels>,
+    /// `pixels` are where the marker's neighbours put it (not its track's place).
+    from_neighbours: bool,
+}
+
+/// The lobes of a marker's blob that is its dot merged with a blob beside it (see
+/// `Labeler::lobes`), pixels.
+#[derive(Debug, Clone, Copy)]
+struct Lobes {
+    /// The far lobe's centre from the blob's centre.
+    far: Vector2<f64>,
+    /// The far lobe's centre from the near one's (the dot's).
+    apart: Vector2<f64>,
+    /// On how many consecutive labels the blob had about these lobes.
+    frames: usize,
 }
 
 /// A frame's detections as the next frame sees them (see `Labeler::label_sudden_moves`).
@@ -646,6 +666,8 @@ struct BlobShape {
     /// times [`Detection::roundness`] (a filled ellipse: 1, a filled disc's pixels about
     /// 1 with its antialiased rim); NaN when not measured.
     fill: f64,
+    /// Unit vector along [`Detection::axis_rad`]; None when not measured.
+    axis: Option<Vector2<f64>>,
 }
 
 impl BlobShape {
@@ -656,6 +678,10 @@ impl BlobShape {
             quality: d.quality,
             roundness: d.roundness,
             fill: d.area_px as f64 / ellipse,
+            axis: d
+                .axis_rad
+                .is_finite()
+                .then(|| Vector2::new(d.axis_rad.cos(), d.axis_rad.sin())),
         }
     }
 }
@@ -773,6 +799,7 @@ impl Labeler {
             last_labeled: 0,
             seen_before: None,
             beside: vec![Default::default(); m],
+            lobes: vec![[None; 2]; m],
             gate: EpipolarGate::new(EpipolarGateParams {
                 floor_px: params.max_reprojection_px,
                 ceiling_px: params
@@ -851,6 +878,7 @@ impl Labeler {
         self.centres = [Vec::new(), Vec::new()];
         self.seen_before = None;
         self.beside.iter_mut().for_each(|b| *b = Default::default());
+        self.lobes.iter_mut().for_each(|l| *l = [None; 2]);
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -993,7 +1021,6 @@ impl Labeler {
                 reacquired,
             });
         }
-        self.remember_beside(&pass.labels, &pixels);
         for (track, &s) in self.tracks.iter_mut().zip(&seen) {
             if !s {
                 track.velocity = Vector3::zeros();
@@ -1002,6 +1029,12 @@ impl Labeler {
                 track.frames_since_seen = Some(0);
             }
         }
+        // After the tracks: a far lobe is told from where this frame's labels put it.
+        let reacquired: Vec<bool> = out
+            .iter()
+            .map(|m| m.as_ref().is_some_and(|m| m.reacquired))
+            .collect();
+        self.remember_beside(&pass.labels, &pixels, &pose, &reacquired);
         if stats.labeled < self.params.lost_min_markers {
             self.lost_count += 1;
         } else {

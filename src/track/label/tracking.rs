@@ -2,10 +2,10 @@
 //! per-camera gated assignment, left/right pairing under the epipolar and 3D gates, and the
 //! head pose of the frame (module docs of [`super`], "Tracking").
 
-use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix2, Point2, Point3, Vector2, Vector3};
 
 use super::assignment::assign_components;
-use super::{Label, Labeler, PassResult, Prediction};
+use super::{Label, Labeler, Lobes, PassResult, Prediction};
 use crate::align::horn_alignment;
 use crate::stereo::{Bundle, TriangulateParams, triangulate};
 
@@ -21,6 +21,18 @@ pub(super) const SMALL_BLOB_FRAMES: usize = 4;
 /// put by its neighbours, off by several pixels where they are far: on cluttered seed 21 a
 /// chin dot 11-15 px from that place had a mole of its size 4-7 px from it.
 const BEYOND_GATE: f64 = 2.0;
+
+/// How far either side of its centre, as a share of the dot's major axis, the lobes of a
+/// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
+/// `Labeler::lobes`): a lone dot 10 % larger than the profile says (about 0.11), or seen
+/// 10° off the normal's angle, is below; a dot and a mole of its size half a dot apart
+/// (0.25) above.
+const LOBE_MIN_OFFSET_RATIO: f64 = 0.15;
+
+/// On how many consecutive labels a marker's blob must have had about the same lobes
+/// before its far lobe is refused (see `Labeler::in_far_lobe`): a dot merged with a mole
+/// stays so, a lip dot squeezed or blurred for a frame does not.
+const LOBE_MIN_FRAMES: usize = 3;
 
 impl Labeler {
     /// Whether detections `det` (cam0, cam1) at `point` are, in either camera, smaller
@@ -292,6 +304,7 @@ impl Labeler {
                     .then(|| self.project_both(&(pose * t.head)));
                 Prediction {
                     last_seen,
+                    from_neighbours: neighbours_head.is_some(),
                     point,
                     pixels,
                     gate_px,
@@ -480,19 +493,37 @@ impl Labeler {
         p.max_gap_gate_px.max(p.gate_px) + p.pose_pass_extra_gate_px + p.gate_px
     }
 
-    /// Remembers, for each marker labeled in this frame, the other blobs beside its dot
-    /// (see [`Labeler::stood_beside`]); the memory of a marker not labeled is kept.
+    /// Remembers, for each marker labeled in this frame (under `pose`), the other blobs
+    /// beside its dot (see [`Labeler::stood_beside`]) and the lobes of a blob that is its
+    /// dot and a mole in one ([`Labeler::lobes`]); the memory of a marker not labeled is
+    /// kept.
     pub(super) fn remember_beside(
         &mut self,
         labels: &[Label],
         pixels: &[Vec<Option<Point2<f64>>>; 2],
+        pose: &Isometry3<f64>,
+        reacquired: &[bool],
     ) {
         let (near, reach) = (self.params.gate_px, self.beside_reach_px());
         for l in labels {
+            let neighbours = self
+                .head_from_neighbours(l.marker)
+                .map(|h| self.project_both(&(pose * h)));
             for (c, dets) in pixels.iter().enumerate() {
                 let Some(x) = dets.get(l.det[c]).copied().flatten() else {
                     continue;
                 };
+                let lobes = neighbours.and_then(|q| q[c]).and_then(|q| {
+                    self.lobes(l.marker, pose, &l.bundle.point_in_cam0, c, l.det[c], x, q)
+                });
+                // Counted over consecutive labels with about the same lobes.
+                let before = self.lobes[l.marker][c].filter(|_| !reacquired[l.marker]);
+                self.lobes[l.marker][c] = lobes.map(|mut new| {
+                    new.frames = before
+                        .filter(|old| (old.far - new.far).norm() <= 0.5 * new.far.norm())
+                        .map_or(1, |old| old.frames + 1);
+                    new
+                });
                 let list = &mut self.beside[l.marker][c];
                 list.clear();
                 list.extend(
@@ -504,6 +535,130 @@ impl Labeler {
                 );
             }
         }
+    }
+
+    /// The lobes of blob `det` in camera `c` at `x`, when the blob is marker `i`'s dot at
+    /// `point` (cam0 frame, head pose `pose`) merged with another blob beside it (a mole,
+    /// a freckle) and its neighbours put the dot at `q`.
+    ///
+    /// Two blobs of a dot's shape whose centres are `s` apart along `u` make one blob whose
+    /// second moments are a dot's plus `(s/2)²·u·uᵀ` (overlap aside). So the blob's
+    /// covariance (from [`crate::track::Detection::diameter_px`], its roundness and
+    /// [`crate::track::Detection::axis_rad`]) less that of the dot expected there (the
+    /// disc through the lens at the skin's normal, [`Labeler::expected_dot_covariance`])
+    /// is about rank one: its largest eigenvalue `λ₁` with eigenvector `u` puts the lobes
+    /// `√λ₁` either side of the centre along `u`. Taken when `√λ₁` is at least
+    /// [`LOBE_MIN_OFFSET_RATIO`] of the dot's major axis, the other eigenvalue at most half
+    /// of `λ₁` (not a dot merely larger than expected), and `q` is within a gate of one
+    /// lobe and at least halfway to it from the centre: that lobe is the dot, the other
+    /// the far one. (Two thin dots side by side at an oblique view merge across their
+    /// minor axes into a round blob: the expected shape tells, not a length.) Without the
+    /// skin's normal, or where the neighbours cannot tell the lobes apart, None.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn lobes(
+        &self,
+        i: usize,
+        pose: &Isometry3<f64>,
+        point: &Point3<f64>,
+        c: usize,
+        det: usize,
+        x: Point2<f64>,
+        q: Point2<f64>,
+    ) -> Option<Lobes> {
+        let blob = self.blobs[c].get(det)?;
+        let axis = blob.axis?;
+        let normal = pose.rotation * self.normals.get(i)?;
+        let (expected, dot_major) = self.expected_dot_covariance(point, &normal, c)?;
+        let (major, minor) = (
+            blob.diameter_px / 4.0,
+            blob.diameter_px * blob.roundness / 4.0,
+        );
+        if !(major.is_finite() && minor.is_finite()) {
+            return None;
+        }
+        let across = Vector2::new(-axis.y, axis.x);
+        let measured = axis * axis.transpose() * (major * major)
+            + across * across.transpose() * (minor * minor);
+        let eig = (measured - expected).symmetric_eigen();
+        let k = usize::from(eig.eigenvalues[1] > eig.eigenvalues[0]);
+        let (l1, l2) = (eig.eigenvalues[k], eig.eigenvalues[1 - k]);
+        let half_apart = l1.max(0.0).sqrt();
+        if half_apart < LOBE_MIN_OFFSET_RATIO * dot_major || l2 > 0.5 * l1 {
+            return None;
+        }
+        let u = eig.eigenvectors.column(k).into_owned();
+        let along = (q - x).dot(&u);
+        let off_axis = (q - x - along * u).norm();
+        let near_lobe = (along.abs() - half_apart).hypot(off_axis);
+        (along.abs() >= 0.5 * half_apart && near_lobe <= self.params.gate_px).then(|| {
+            let far = -along.signum() * half_apart * u;
+            Lobes {
+                far,
+                apart: 2.0 * far,
+                frames: 1,
+            }
+        })
+    }
+
+    /// Whether the blob at `x` in camera `c`, a candidate of marker `i`, lies where the far
+    /// lobe of the marker's last label was ([`Labeler::lobes`]), seen from `q`: where its
+    /// neighbours put the dot (`from_neighbours`), or where the marker was last labeled or
+    /// is tracked to. Within half the lobe's offset: nearer to the far lobe than to the
+    /// blob's centre or the dot's own place.
+    ///
+    /// Such a label sits between the dot and the mole. When the dot is smudged off the
+    /// mole is left, its centre that far from where the marker was labeled: it is not
+    /// taken for the marker, like a blob that stood beside its dot ([`Labeler::stood_beside`]).
+    pub(super) fn in_far_lobe(
+        &self,
+        i: usize,
+        c: usize,
+        x: Point2<f64>,
+        q: Point2<f64>,
+        from_neighbours: bool,
+    ) -> bool {
+        self.lobes.get(i).and_then(|l| l[c]).is_some_and(|l| {
+            l.frames >= LOBE_MIN_FRAMES && {
+                let offset = if from_neighbours { l.apart } else { l.far };
+                ((x - q) - offset).norm() <= 0.5 * l.far.norm()
+            }
+        })
+    }
+
+    /// The covariance (second moments, pixels²) of the blob a dot at `point` with the
+    /// skin's `normal` (both cam0 frame) makes in camera `c`, and its major axis (pixels):
+    /// the disc's image through the lens's Jacobian, each axis a pixel longer for the
+    /// antialiased rim as [`crate::track::Detection::diameter_px`] measures it. None when
+    /// the point does not project.
+    pub(super) fn expected_dot_covariance(
+        &self,
+        point: &Point3<f64>,
+        normal: &Vector3<f64>,
+        c: usize,
+    ) -> Option<(Matrix2<f64>, f64)> {
+        let (cam, p, n) = if c == 0 {
+            (&self.rig.cam0, point.coords, *normal)
+        } else {
+            (
+                &self.rig.cam1,
+                (self.rig.cam1_from_cam0 * point).coords,
+                self.rig.cam1_from_cam0.rotation * normal,
+            )
+        };
+        let n = n.try_normalize(1e-12)?;
+        let (_, j) = cam.project_with_jacobian(&p)?;
+        let e1 = n
+            .cross(&Vector3::x())
+            .try_normalize(1e-6)
+            .unwrap_or_else(|| n.cross(&Vector3::y()).normalize());
+        let e2 = n.cross(&e1);
+        let m = j * nalgebra::Matrix3x2::from_columns(&[e1, e2]);
+        let svd = m.svd(true, false);
+        let u = svd.u?;
+        let d = self.params.dot_diameter_mm;
+        let axes = svd.singular_values.map(|s| (d * s + 1.0) / 4.0);
+        let cov = u * Matrix2::from_diagonal(&axes.component_mul(&axes)) * u.transpose();
+        Some((cov, 4.0 * axes.max()))
     }
 
     /// Whether the blob at `x` in camera `c`, a candidate of marker `i` predicted at `q`,
@@ -724,6 +879,7 @@ impl Labeler {
             let small_for_long = self.tracks[i].small_blob_frames >= SMALL_BLOB_FRAMES
                 && self.smaller_than_a_whole_dot(&bundle.point_in_cam0, [a, b]);
             let last_seen = preds[i].last_seen.unwrap_or_default();
+            let from_neighbours = preds[i].from_neighbours;
             small_for_long
                 || [pixels[0][a], pixels[1][b]]
                     .iter()
@@ -735,6 +891,8 @@ impl Labeler {
                                 .iter()
                                 .flatten()
                                 .any(|&q| self.stood_beside(i, c, x, q))
+                                || q.is_some_and(|q| self.in_far_lobe(i, c, x, q, from_neighbours))
+                                || l.is_some_and(|l| self.in_far_lobe(i, c, x, l, false))
                         })
                     })
         };
