@@ -58,9 +58,12 @@
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
 //! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
 //! it is not taken for it ([`Labeler::stood_beside`]). Nor is a mole that was one blob
-//! with the dot: a labeled blob whose second moments are a dot's plus one direction's
-//! (two lobes) has its far lobe, the one away from where the neighbours put the dot,
-//! remembered ([`Labeler::in_far_lobe`]). A marker whose blobs stay smaller
+//! with the dot: a blob whose second moments are a dot's plus one direction's is a dot
+//! merged with a blob beside it ([`Labeler::far_lobe`]); the lobe nearer to where the
+//! neighbours put the marker is the dot, where the marker is labeled (at a first
+//! sighting, unless the other lobe is within a rival's reach; a marker tracked onto such
+//! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
+//! A marker whose blobs stay smaller
 //! than a whole dot of its paint can look, frame after frame, is not on its dot (a
 //! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
 //! it is labeled only on a blob a first sighting may have. When too few
@@ -518,6 +521,10 @@ struct Track {
     frames_since_seen: Option<usize>,
     /// The marker's last label was a worn dot ([`LabelParams::worn_dots`]).
     worn: bool,
+    /// When the marker's last label was a dot merged with a blob beside it (labeled at
+    /// the dot's lobe, see `Labeler::merged_dot`): the largest distance, pixels, from the
+    /// blob's centre to the lobe in either camera; 0 otherwise.
+    lobe_px: f64,
     /// Labeled frames in a row whose blobs were smaller than a first sighting may be
     /// ([`Labeler::smaller_than_a_whole_dot`]).
     small_blob_frames: usize,
@@ -614,14 +621,17 @@ struct Prediction {
     last_seen: Option<StereoPixels>,
     /// `pixels` are where the marker's neighbours put it (not its track's place).
     from_neighbours: bool,
+    /// The marker's last label, in the last frame, was a dot merged with a blob beside it.
+    merged: bool,
 }
 
 /// The lobes of a marker's blob that is its dot merged with a blob beside it (see
 /// `Labeler::lobes`), pixels.
 #[derive(Debug, Clone, Copy)]
 struct Lobes {
-    /// The far lobe's centre from the blob's centre.
-    far: Vector2<f64>,
+    /// The far lobe's centre from the label's pixel (the blob's centre, or the dot's
+    /// lobe when the label is there).
+    from_label: Vector2<f64>,
     /// The far lobe's centre from the near one's (the dot's).
     apart: Vector2<f64>,
     /// On how many consecutive labels the blob had about these lobes.
@@ -696,6 +706,9 @@ struct Label {
     confident: bool,
     /// On a worn dot ([`LabelParams::worn_dots`]).
     worn: bool,
+    /// On a dot merged with a blob beside it: the pixels of the dot's lobe, where the
+    /// label is (see `Labeler::merged_dot`); None: at the detections' centres.
+    at: Option<[Point2<f64>; 2]>,
 }
 
 /// Result of one labeling pass.
@@ -1005,6 +1018,11 @@ impl Labeler {
             };
             track.head = head;
             track.worn = l.worn;
+            track.lobe_px = l.at.map_or(0.0, |at| {
+                (0..2)
+                    .filter_map(|c| pixels[c][l.det[c]].map(|x| (x - at[c]).norm()))
+                    .fold(0.0, f64::max)
+            });
             track.small_blob_frames = if small[l.marker] {
                 track.small_blob_frames + 1
             } else {
@@ -1013,7 +1031,11 @@ impl Labeler {
             seen[l.marker] = true;
             stats.labeled += 1;
             stats.reacquired += usize::from(reacquired);
-            let px = |c: usize| pixels[c][l.det[c]].unwrap_or_else(Point2::origin);
+            let px = |c: usize| {
+                l.at.map(|at| at[c])
+                    .or(pixels[c][l.det[c]])
+                    .unwrap_or_else(Point2::origin)
+            };
             out[l.marker] = Some(LabeledMarker {
                 bundle: l.bundle,
                 pixels: [px(0), px(1)],
@@ -1035,6 +1057,7 @@ impl Labeler {
             .map(|m| m.as_ref().is_some_and(|m| m.reacquired))
             .collect();
         self.remember_beside(&pass.labels, &pixels, &pose, &reacquired);
+        self.move_onto_lobes(&pass.labels, &pixels, &pose);
         if stats.labeled < self.params.lost_min_markers {
             self.lost_count += 1;
         } else {
@@ -1185,6 +1208,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             velocity: Vector3::zeros(),
             frames_since_seen: None,
             worn: false,
+            lobe_px: 0.0,
             small_blob_frames: 0,
         })
         .collect()

@@ -24,15 +24,68 @@ const BEYOND_GATE: f64 = 2.0;
 
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
 /// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
-/// `Labeler::lobes`): a lone dot 10 % larger than the profile says (about 0.11), or seen
-/// 10° off the normal's angle, is below; a dot and a mole of its size half a dot apart
-/// (0.25) above.
-const LOBE_MIN_OFFSET_RATIO: f64 = 0.15;
+/// `Labeler::far_lobe`): a lone dot 10 % larger than the profile says looks like lobes
+/// 0.05 either side, a dot and a mole of its size half a dot apart are 0.25.
+const LOBE_MIN_OFFSET_RATIO: f64 = 0.1;
+
+/// `√a(s)` at `s = 0, 0.05, …, 1`: the second moment `a(s)` that two discs of diameter 1
+/// whose centres are `s` apart add along the line through them to one disc's (`1/16`),
+/// their overlap counted once (by numerical integration; the `union_of_two_discs` test
+/// checks it). Without the overlap it would be `s/2`; with it, more (the lens between
+/// the discs is missing from the union's middle).
+const TWO_DISCS_SPREAD: [f64; 21] = [
+    0.0, 0.0827, 0.1187, 0.1476, 0.1729, 0.1963, 0.2182, 0.2391, 0.2595, 0.2793, 0.2988, 0.3181,
+    0.3373, 0.3565, 0.3757, 0.3951, 0.4148, 0.4349, 0.4556, 0.4770, 0.5,
+];
+
+/// Half the distance between two discs of diameter 1 whose union has the spread `spread`
+/// ([`TWO_DISCS_SPREAD`], inverted by linear interpolation); None beyond two discs that
+/// touch.
+fn two_discs_half_apart(spread: f64) -> Option<f64> {
+    if !(0.0..=0.5).contains(&spread) {
+        return None;
+    }
+    let k = TWO_DISCS_SPREAD
+        .partition_point(|&v| v < spread)
+        .clamp(1, 20);
+    let (a, b) = (TWO_DISCS_SPREAD[k - 1], TWO_DISCS_SPREAD[k]);
+    let t = (spread - a) / (b - a);
+    Some(0.025 * ((k - 1) as f64 + t))
+}
 
 /// On how many consecutive labels a marker's blob must have had about the same lobes
 /// before its far lobe is refused (see `Labeler::in_far_lobe`): a dot merged with a mole
 /// stays so, a lip dot squeezed or blurred for a frame does not.
 const LOBE_MIN_FRAMES: usize = 3;
+
+/// What a pair of detections passed as a marker's label.
+#[derive(Debug, Clone, Copy)]
+enum Fit {
+    /// A dot's shape and size.
+    Dot,
+    /// A worn dot where the neighbours put the marker ([`Labeler::worn_dot`]).
+    Worn,
+    /// A dot merged with a blob beside it, at the dot's lobe (pixels, per camera;
+    /// [`Labeler::merged_dot`]).
+    Merged([Point2<f64>; 2]),
+}
+
+impl Fit {
+    /// The label of marker `i` on detections `det` so fitted.
+    fn label(self, i: usize, det: [usize; 2], bundle: Bundle, confident: bool) -> Label {
+        Label {
+            marker: i,
+            det,
+            bundle,
+            confident,
+            worn: matches!(self, Fit::Worn),
+            at: match self {
+                Fit::Merged(at) => Some(at),
+                _ => None,
+            },
+        }
+    }
+}
 
 impl Labeler {
     /// Whether detections `det` (cam0, cam1) at `point` are, in either camera, smaller
@@ -276,7 +329,15 @@ impl Labeler {
                         .min(p.max_gap_gate_px.max(p.gate_px)),
                     None => p.max_gap_gate_px.max(p.gate_px),
                 };
-                let gate_px = gap_gate + p.velocity_gate_factor * motion_px + extra_gate_px;
+                // A dot merged with a blob beside it is labeled at its lobe, the blob's
+                // centre that much away.
+                let lobe_px = if t.frames_since_seen == Some(0) {
+                    t.lobe_px
+                } else {
+                    0.0
+                };
+                let gate_px =
+                    gap_gate + p.velocity_gate_factor * motion_px + extra_gate_px + lobe_px;
                 let gate_mm = p.gate_3d_factor * gate_px * depth / f;
                 // Where the marker was (or would have been) in the last frame.
                 let before = self.pose.map(|last| self.project_both(&(last * t.head)));
@@ -305,6 +366,7 @@ impl Labeler {
                 Prediction {
                     last_seen,
                     from_neighbours: neighbours_head.is_some(),
+                    merged: t.frames_since_seen == Some(0) && t.lobe_px > 0.0,
                     point,
                     pixels,
                     gate_px,
@@ -510,17 +572,19 @@ impl Labeler {
                 .head_from_neighbours(l.marker)
                 .map(|h| self.project_both(&(pose * h)));
             for (c, dets) in pixels.iter().enumerate() {
-                let Some(x) = dets.get(l.det[c]).copied().flatten() else {
+                let Some(centre) = dets.get(l.det[c]).copied().flatten() else {
                     continue;
                 };
-                let lobes = neighbours.and_then(|q| q[c]).and_then(|q| {
-                    self.lobes(l.marker, pose, &l.bundle.point_in_cam0, c, l.det[c], x, q)
-                });
+                let x = l.at.map_or(centre, |at| at[c]);
+                let point = &l.bundle.point_in_cam0;
+                let lobes = neighbours
+                    .and_then(|q| q[c])
+                    .and_then(|q| self.lobes(l.marker, pose, point, c, l.det[c], centre, x, q));
                 // Counted over consecutive labels with about the same lobes.
                 let before = self.lobes[l.marker][c].filter(|_| !reacquired[l.marker]);
                 self.lobes[l.marker][c] = lobes.map(|mut new| {
                     new.frames = before
-                        .filter(|old| (old.far - new.far).norm() <= 0.5 * new.far.norm())
+                        .filter(|old| (old.apart - new.apart).norm() <= 0.25 * new.apart.norm())
                         .map_or(1, |old| old.frames + 1);
                     new
                 });
@@ -537,41 +601,39 @@ impl Labeler {
         }
     }
 
-    /// The lobes of blob `det` in camera `c` at `x`, when the blob is marker `i`'s dot at
-    /// `point` (cam0 frame, head pose `pose`) merged with another blob beside it (a mole,
-    /// a freckle) and its neighbours put the dot at `q`.
+    /// The far lobe of blob `det` in camera `c` at `x`, as an offset from `x`, when the
+    /// blob is a dot at `point` with the skin's `normal` (both cam0 frame) merged with
+    /// another blob beside it (a mole, a freckle) and the dot is expected at `q`.
     ///
     /// Two blobs of a dot's shape whose centres are `s` apart along `u` make one blob whose
-    /// second moments are a dot's plus `(s/2)²·u·uᵀ` (overlap aside). So the blob's
-    /// covariance (from [`crate::track::Detection::diameter_px`], its roundness and
-    /// [`crate::track::Detection::axis_rad`]) less that of the dot expected there (the
-    /// disc through the lens at the skin's normal, [`Labeler::expected_dot_covariance`])
-    /// is about rank one: its largest eigenvalue `λ₁` with eigenvector `u` puts the lobes
-    /// `√λ₁` either side of the centre along `u`. Taken when `√λ₁` is at least
-    /// [`LOBE_MIN_OFFSET_RATIO`] of the dot's major axis, the other eigenvalue at most half
-    /// of `λ₁` (not a dot merely larger than expected), and `q` is within a gate of one
-    /// lobe and at least halfway to it from the centre: that lobe is the dot, the other
-    /// the far one. (Two thin dots side by side at an oblique view merge across their
-    /// minor axes into a round blob: the expected shape tells, not a length.) Without the
-    /// skin's normal, or where the neighbours cannot tell the lobes apart, None.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn lobes(
+    /// second moments are a dot's plus `a·u·uᵀ` (and a little across it), `√a` a function
+    /// of `s` over the dot's diameter along `u` ([`TWO_DISCS_SPREAD`]; `s/2` without the
+    /// overlap). So the blob's covariance (from [`crate::track::Detection::diameter_px`],
+    /// its roundness and [`crate::track::Detection::axis_rad`], less the antialiased rim)
+    /// less that of the dot expected there (the disc through the lens at the skin's
+    /// normal, [`Labeler::expected_dot_covariance`]) is about rank one: its largest
+    /// eigenvalue `λ₁ = a` with eigenvector `u` puts the lobes `s/2` either side of the
+    /// centre along `u`. Taken when `s/2` is at least [`LOBE_MIN_OFFSET_RATIO`] of the
+    /// dot's major axis, the two discs overlap, the other eigenvalue is at most half of
+    /// `λ₁` (not a dot merely larger than expected), and `q` is within a gate of one lobe
+    /// and at least halfway to it from the centre: that lobe is the dot, the other the far
+    /// one. (Two thin dots side by side at an oblique view merge across their minor axes
+    /// into a round blob: the expected shape tells, not a length.)
+    pub(super) fn far_lobe(
         &self,
-        i: usize,
-        pose: &Isometry3<f64>,
         point: &Point3<f64>,
+        normal: &Vector3<f64>,
         c: usize,
         det: usize,
         x: Point2<f64>,
         q: Point2<f64>,
-    ) -> Option<Lobes> {
+    ) -> Option<Vector2<f64>> {
         let blob = self.blobs[c].get(det)?;
         let axis = blob.axis?;
-        let normal = pose.rotation * self.normals.get(i)?;
-        let (expected, dot_major) = self.expected_dot_covariance(point, &normal, c)?;
+        let (expected, dot_major) = self.expected_dot_covariance(point, normal, c)?;
         let (major, minor) = (
-            blob.diameter_px / 4.0,
-            blob.diameter_px * blob.roundness / 4.0,
+            (blob.diameter_px - 1.0).max(0.0) / 4.0,
+            (blob.diameter_px * blob.roundness - 1.0).max(0.0) / 4.0,
         );
         if !(major.is_finite() && minor.is_finite()) {
             return None;
@@ -582,22 +644,127 @@ impl Labeler {
         let eig = (measured - expected).symmetric_eigen();
         let k = usize::from(eig.eigenvalues[1] > eig.eigenvalues[0]);
         let (l1, l2) = (eig.eigenvalues[k], eig.eigenvalues[1 - k]);
-        let half_apart = l1.max(0.0).sqrt();
+        let u = eig.eigenvectors.column(k).into_owned();
+        let dot_along = 4.0 * (u.transpose() * expected * u)[0].max(0.0).sqrt();
+        let half_apart = dot_along * two_discs_half_apart(l1.max(0.0).sqrt() / dot_along)?;
         if half_apart < LOBE_MIN_OFFSET_RATIO * dot_major || l2 > 0.5 * l1 {
             return None;
         }
-        let u = eig.eigenvectors.column(k).into_owned();
         let along = (q - x).dot(&u);
         let off_axis = (q - x - along * u).norm();
         let near_lobe = (along.abs() - half_apart).hypot(off_axis);
-        (along.abs() >= 0.5 * half_apart && near_lobe <= self.params.gate_px).then(|| {
-            let far = -along.signum() * half_apart * u;
-            Lobes {
-                far,
-                apart: 2.0 * far,
-                frames: 1,
-            }
+        (along.abs() >= 0.5 * half_apart && near_lobe <= self.params.gate_px)
+            .then(|| -along.signum() * half_apart * u)
+    }
+
+    /// The lobes of marker `i`'s label on detection `det` at `x` in camera `c` (its bundle
+    /// at `point`, cam0 frame, under head pose `pose`), its pixel `at` (the blob's centre,
+    /// or its dot's lobe), when its neighbours put the marker at `q` and the blob is a dot
+    /// merged with another ([`Labeler::far_lobe`]). None without the skin's normal.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn lobes(
+        &self,
+        i: usize,
+        pose: &Isometry3<f64>,
+        point: &Point3<f64>,
+        c: usize,
+        det: usize,
+        x: Point2<f64>,
+        at: Point2<f64>,
+        q: Point2<f64>,
+    ) -> Option<Lobes> {
+        let normal = pose.rotation * self.normals.get(i)?;
+        let far = self.far_lobe(point, &normal, c, det, x, q)?;
+        Some(Lobes {
+            from_label: x + far - at,
+            apart: 2.0 * far,
+            frames: 1,
         })
+    }
+
+    /// Moves the tracks of markers labeled at the centre of a blob that has had about the
+    /// same lobes for [`LOBE_MIN_FRAMES`] labels ([`Labeler::lobes`]: a dot that a mole
+    /// came to touch, a first sighting before the neighbours were tracked) onto the dot's
+    /// lobe (under head pose `pose`): from the next frame they are tracked there
+    /// ([`Labeler::merged_dot`]), not between the dot and the mole.
+    pub(super) fn move_onto_lobes(
+        &mut self,
+        labels: &[Label],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        pose: &Isometry3<f64>,
+    ) {
+        let inverse = pose.inverse();
+        for l in labels.iter().filter(|l| l.at.is_none()) {
+            let i = l.marker;
+            let lobes = self.lobes[i];
+            let at = [0, 1].map(|c| {
+                let far = lobes[c].filter(|lobe| lobe.frames >= LOBE_MIN_FRAMES)?;
+                Some((pixels[c][l.det[c]]? - far.from_label, far.from_label.norm()))
+            });
+            let [Some((at0, lobe0)), Some((at1, lobe1))] = at else {
+                continue;
+            };
+            let Ok(bundle) = triangulate(&self.rig, &at0, &at1, &self.params.pair.triangulate)
+            else {
+                continue;
+            };
+            tracing::debug!(marker = i, "tracked on its dot's lobe from the next frame");
+            // The far lobe is now seen from the dot's lobe.
+            for lobe in self.lobes[i].iter_mut().flatten() {
+                lobe.from_label = lobe.apart;
+            }
+            let track = &mut self.tracks[i];
+            track.head = inverse * bundle.point_in_cam0;
+            track.lobe_px = lobe0.max(lobe1);
+        }
+    }
+
+    /// The dot's lobe in each camera when detections `det` at `x` are marker `pr`'s dot
+    /// merged with a blob beside it ([`Labeler::far_lobe`]): for a first sighting (with
+    /// worn dots on, [`super::LabelParams::worn_dots`]: a blob that is not a dot's shape is
+    /// taken only there) the lobe within [`Labeler::worn_dot_tolerance_px`] of where the
+    /// neighbours put the marker; for a marker tracked on such a blob, within the tight
+    /// gate of its prediction. The label is at the lobes, not at the blob's centre between
+    /// the dot and the mole. None without the skin's normal, and for a first sighting
+    /// whose far lobe is, in both cameras, within the reach of a rival beyond the gate
+    /// (as in `Labeler::label_pass`) of where the neighbours put the marker.
+    pub(super) fn merged_dot(
+        &self,
+        pr: &Prediction,
+        det: [usize; 2],
+        x: [Point2<f64>; 2],
+    ) -> Option<[Point2<f64>; 2]> {
+        let normal = pr.normal?;
+        let (point, anchor) = if pr.first_sighting {
+            pr.vouched.filter(|_| pr.may_be_worn)?
+        } else {
+            (pr.point, pr.pixels)
+        };
+        let p = &self.params;
+        let mut at = [Point2::origin(); 2];
+        let mut far_in_reach = true;
+        for c in 0..2 {
+            let q = anchor[c]?;
+            let far = self.far_lobe(&point, &normal, c, det[c], x[c], q)?;
+            let near = x[c] - far;
+            let e = (near - q).norm();
+            let tolerance = if pr.first_sighting {
+                self.worn_dot_tolerance_px(&point, c)?
+            } else {
+                p.gate_px
+            };
+            if e > tolerance {
+                return None;
+            }
+            let reach = (p.ambiguity_ratio * e + p.ambiguity_margin_px)
+                .clamp(pr.gate_px, BEYOND_GATE * pr.gate_px);
+            far_in_reach &= (x[c] + far - q).norm() <= reach;
+            at[c] = near;
+        }
+        // A first sighting whose far lobe could be the dot too, as a rival blob beyond the
+        // gate could (`Labeler::label_pass`), is in doubt: where the neighbours put the
+        // marker is a guess.
+        (!(pr.first_sighting && far_in_reach)).then_some(at)
     }
 
     /// Whether the blob at `x` in camera `c`, a candidate of marker `i`, lies where the far
@@ -619,17 +786,21 @@ impl Labeler {
     ) -> bool {
         self.lobes.get(i).and_then(|l| l[c]).is_some_and(|l| {
             l.frames >= LOBE_MIN_FRAMES && {
-                let offset = if from_neighbours { l.apart } else { l.far };
-                ((x - q) - offset).norm() <= 0.5 * l.far.norm()
+                let offset = if from_neighbours {
+                    l.apart
+                } else {
+                    l.from_label
+                };
+                ((x - q) - offset).norm() <= 0.25 * l.apart.norm()
             }
         })
     }
 
     /// The covariance (second moments, pixels²) of the blob a dot at `point` with the
     /// skin's `normal` (both cam0 frame) makes in camera `c`, and its major axis (pixels):
-    /// the disc's image through the lens's Jacobian, each axis a pixel longer for the
-    /// antialiased rim as [`crate::track::Detection::diameter_px`] measures it. None when
-    /// the point does not project.
+    /// the disc's image through the lens's Jacobian (without the antialiased rim that
+    /// [`crate::track::Detection::diameter_px`] adds). None when the point does not
+    /// project.
     pub(super) fn expected_dot_covariance(
         &self,
         point: &Point3<f64>,
@@ -656,7 +827,7 @@ impl Labeler {
         let svd = m.svd(true, false);
         let u = svd.u?;
         let d = self.params.dot_diameter_mm;
-        let axes = svd.singular_values.map(|s| (d * s + 1.0) / 4.0);
+        let axes = svd.singular_values.map(|s| d * s / 4.0);
         let cov = u * Matrix2::from_diagonal(&axes.component_mul(&axes)) * u.transpose();
         Some((cov, 4.0 * axes.max()))
     }
@@ -844,32 +1015,44 @@ impl Labeler {
             ..p.pair.triangulate.clone()
         };
         // The checks of a pair (a, b) for marker i with its 3D gate times `reach`.
-        let check_within = |i: usize, a: usize, b: usize, reach: f64| -> Option<(Bundle, bool)> {
+        let check_within = |i: usize, a: usize, b: usize, reach: f64| -> Option<(Bundle, Fit)> {
             let (Some(x0), Some(x1)) = (pixels[0][a], pixels[1][b]) else {
                 return None;
             };
-            let bundle = triangulate(&self.rig, &x0, &x1, &tri).ok()?;
-            if (bundle.point_in_cam0 - preds[i].point).norm() > reach * preds[i].gate_mm {
-                return None;
+            let pr = &preds[i];
+            let gated = |at: [Point2<f64>; 2]| {
+                triangulate(&self.rig, &at[0], &at[1], &tri)
+                    .ok()
+                    .filter(|b| (b.point_in_cam0 - pr.point).norm() <= reach * pr.gate_mm)
+            };
+            // A dot merged with a blob beside it is labeled at its lobe: at a first sighting
+            // where the neighbours put it, and then as it is tracked there.
+            if (pr.merged || pr.first_sighting)
+                && let Some(at) = self.merged_dot(pr, [a, b], [x0, x1])
+                && let Some(bundle) = gated(at)
+            {
+                return Some((bundle, Fit::Merged(at)));
             }
-            let dot =
-                self.dot_sized(
+            if let Some(bundle) = gated([x0, x1]) {
+                let dot = self.dot_sized(
                     &bundle.point_in_cam0,
                     [a, b],
-                    preds[i].motion_px,
-                    if preds[i].first_sighting {
+                    pr.motion_px,
+                    if pr.first_sighting {
                         p.first_sighting_size_ratio
                     } else {
                         p.dot_size_ratio
                     },
-                ) && self.round_enough(&bundle.point_in_cam0, preds[i].normal.as_ref(), [a, b])
-                    && (!preds[i].first_sighting || self.filled_like_a_dot([a, b]));
-            if dot {
-                Some((bundle, false))
-            } else {
-                self.worn_dot(&preds[i], [a, b], [x0, x1])
-                    .then_some((bundle, true))
+                ) && self.round_enough(&bundle.point_in_cam0, pr.normal.as_ref(), [a, b])
+                    && (!pr.first_sighting || self.filled_like_a_dot([a, b]));
+                if dot {
+                    return Some((bundle, Fit::Dot));
+                }
+                if self.worn_dot(pr, [a, b], [x0, x1]) {
+                    return Some((bundle, Fit::Worn));
+                }
             }
+            None
         };
         let check = |i: usize, a: usize, b: usize| check_within(i, a, b, 1.0);
         // Whether detections (a, b) are never marker i's label, but still a pair that makes
@@ -961,16 +1144,10 @@ impl Labeler {
                         );
                         rejected += 1;
                     }
-                    Some((bundle, worn)) => {
+                    Some((bundle, fit)) => {
                         used[0][a] = true;
                         used[1][b] = true;
-                        labels.push(Label {
-                            marker: i,
-                            det: [a, b],
-                            bundle,
-                            confident: true,
-                            worn,
-                        });
+                        labels.push(fit.label(i, [a, b], bundle, true));
                     }
                     None => rejected += 1,
                 },
@@ -991,18 +1168,12 @@ impl Labeler {
                     if used[1][b] {
                         continue;
                     }
-                    if let Some((bundle, worn)) = check(i, a, b) {
+                    if let Some((bundle, fit)) = check(i, a, b) {
                         count += 1;
                         if refused(i, a, b, &bundle) {
                             continue;
                         }
-                        found = Some(Label {
-                            marker: i,
-                            det: [a, b],
-                            bundle,
-                            confident: false,
-                            worn,
-                        });
+                        found = Some(fit.label(i, [a, b], bundle, false));
                     }
                 }
             }
@@ -1123,10 +1294,44 @@ pub(super) enum Returning {
 
 #[cfg(test)]
 mod tests {
-    use super::singular_values;
+    use super::{TWO_DISCS_SPREAD, singular_values, two_discs_half_apart};
     use nalgebra::{Matrix2x3, Rotation2, Rotation3, Vector3};
 
     /// The singular values do not change under rotations on either side.
+    #[test]
+    fn union_of_two_discs() {
+        // The spread of two overlapping discs of diameter 1, by counting the points of a
+        // fine grid in their union, against the table, and the table's inverse.
+        let n = 1500;
+        for k in [2usize, 5, 10, 15, 19] {
+            let s = 0.05 * k as f64;
+            let (mut count, mut sum, mut sum2) = (0.0, 0.0, 0.0);
+            for i in 0..n {
+                for j in 0..n {
+                    let x = -1.0 + 2.0 * (i as f64 + 0.5) / n as f64;
+                    let y = -1.0 + 2.0 * (j as f64 + 0.5) / n as f64;
+                    let inside = |c: f64| (x - c).powi(2) + y * y <= 0.25;
+                    if inside(0.5 * s) || inside(-0.5 * s) {
+                        count += 1.0;
+                        sum += x;
+                        sum2 += x * x;
+                    }
+                }
+            }
+            let spread = (sum2 / count - (sum / count).powi(2) - 1.0 / 16.0).sqrt();
+            assert!(
+                (spread - TWO_DISCS_SPREAD[k]).abs() < 2e-3,
+                "s = {s}: {spread}"
+            );
+            let half = two_discs_half_apart(spread).unwrap();
+            assert!((half - 0.5 * s).abs() < 3e-3, "s = {s}: half {half}");
+        }
+        assert_eq!(two_discs_half_apart(0.0), Some(0.0));
+        assert_eq!(two_discs_half_apart(0.5), Some(0.5));
+        assert_eq!(two_discs_half_apart(0.51), None);
+        assert_eq!(two_discs_half_apart(f64::NAN), None);
+    }
+
     #[test]
     fn singular_values_of_a_rotated_scaling() {
         let scaling = Matrix2x3::new(3.0, 0.0, 0.0, 0.0, 2.0, 0.0);
