@@ -626,7 +626,7 @@ struct Prediction {
 }
 
 /// The lobes of a marker's blob that is its dot merged with a blob beside it (see
-/// `Labeler::lobes`), pixels.
+/// `Labeler::far_lobe`), pixels.
 #[derive(Debug, Clone, Copy)]
 struct Lobes {
     /// The far lobe's centre from the label's pixel (the blob's centre, or the dot's

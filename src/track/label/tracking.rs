@@ -557,7 +557,7 @@ impl Labeler {
 
     /// Remembers, for each marker labeled in this frame (under `pose`), the other blobs
     /// beside its dot (see [`Labeler::stood_beside`]) and the lobes of a blob that is its
-    /// dot and a mole in one ([`Labeler::lobes`]); the memory of a marker not labeled is
+    /// dot and a mole in one ([`Labeler::far_lobe`]); the memory of a marker not labeled is
     /// kept.
     pub(super) fn remember_beside(
         &mut self,
@@ -568,18 +568,31 @@ impl Labeler {
     ) {
         let (near, reach) = (self.params.gate_px, self.beside_reach_px());
         for l in labels {
-            let neighbours = self
-                .head_from_neighbours(l.marker)
+            // Where the neighbours put the marker, asked only of a blob with lobes.
+            let point = &l.bundle.point_in_cam0;
+            let normal = self.normals.get(l.marker).map(|n| pose.rotation * n);
+            let split = [0, 1]
+                .map(|c| normal.and_then(|n| self.lobe_split(point, &n, c, l.det[c]).map(|_| n)));
+            let neighbours = split
+                .iter()
+                .any(Option::is_some)
+                .then(|| self.head_from_neighbours(l.marker))
+                .flatten()
                 .map(|h| self.project_both(&(pose * h)));
             for (c, dets) in pixels.iter().enumerate() {
                 let Some(centre) = dets.get(l.det[c]).copied().flatten() else {
                     continue;
                 };
                 let x = l.at.map_or(centre, |at| at[c]);
-                let point = &l.bundle.point_in_cam0;
-                let lobes = neighbours
-                    .and_then(|q| q[c])
-                    .and_then(|q| self.lobes(l.marker, pose, point, c, l.det[c], centre, x, q));
+                let far = split[c]
+                    .zip(neighbours.and_then(|q| q[c]))
+                    .and_then(|(n, q)| self.far_lobe(point, &n, c, l.det[c], centre, q));
+                // The far lobe from the label's pixel (the blob's centre, or the dot's lobe).
+                let lobes = far.map(|far| Lobes {
+                    from_label: centre + far - x,
+                    apart: 2.0 * far,
+                    frames: 1,
+                });
                 // Counted over consecutive labels with about the same lobes.
                 let before = self.lobes[l.marker][c].filter(|_| !reacquired[l.marker]);
                 self.lobes[l.marker][c] = lobes.map(|mut new| {
@@ -628,6 +641,24 @@ impl Labeler {
         x: Point2<f64>,
         q: Point2<f64>,
     ) -> Option<Vector2<f64>> {
+        let (u, half_apart) = self.lobe_split(point, normal, c, det)?;
+        let along = (q - x).dot(&u);
+        let off_axis = (q - x - along * u).norm();
+        let near_lobe = (along.abs() - half_apart).hypot(off_axis);
+        (along.abs() >= 0.5 * half_apart && near_lobe <= self.params.gate_px)
+            .then(|| -along.signum() * half_apart * u)
+    }
+
+    /// The direction `u` (unit) and half the distance (pixels) of the lobes of blob `det`
+    /// in camera `c`, when its second moments are those of a dot at `point` with the
+    /// skin's `normal` merged with another ([`Labeler::far_lobe`]).
+    pub(super) fn lobe_split(
+        &self,
+        point: &Point3<f64>,
+        normal: &Vector3<f64>,
+        c: usize,
+        det: usize,
+    ) -> Option<(Vector2<f64>, f64)> {
         let blob = self.blobs[c].get(det)?;
         let axis = blob.axis?;
         let (expected, dot_major) = self.expected_dot_covariance(point, normal, c)?;
@@ -647,43 +678,12 @@ impl Labeler {
         let u = eig.eigenvectors.column(k).into_owned();
         let dot_along = 4.0 * (u.transpose() * expected * u)[0].max(0.0).sqrt();
         let half_apart = dot_along * two_discs_half_apart(l1.max(0.0).sqrt() / dot_along)?;
-        if half_apart < LOBE_MIN_OFFSET_RATIO * dot_major || l2 > 0.5 * l1 {
-            return None;
-        }
-        let along = (q - x).dot(&u);
-        let off_axis = (q - x - along * u).norm();
-        let near_lobe = (along.abs() - half_apart).hypot(off_axis);
-        (along.abs() >= 0.5 * half_apart && near_lobe <= self.params.gate_px)
-            .then(|| -along.signum() * half_apart * u)
-    }
-
-    /// The lobes of marker `i`'s label on detection `det` at `x` in camera `c` (its bundle
-    /// at `point`, cam0 frame, under head pose `pose`), its pixel `at` (the blob's centre,
-    /// or its dot's lobe), when its neighbours put the marker at `q` and the blob is a dot
-    /// merged with another ([`Labeler::far_lobe`]). None without the skin's normal.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn lobes(
-        &self,
-        i: usize,
-        pose: &Isometry3<f64>,
-        point: &Point3<f64>,
-        c: usize,
-        det: usize,
-        x: Point2<f64>,
-        at: Point2<f64>,
-        q: Point2<f64>,
-    ) -> Option<Lobes> {
-        let normal = pose.rotation * self.normals.get(i)?;
-        let far = self.far_lobe(point, &normal, c, det, x, q)?;
-        Some(Lobes {
-            from_label: x + far - at,
-            apart: 2.0 * far,
-            frames: 1,
-        })
+        (half_apart >= LOBE_MIN_OFFSET_RATIO * dot_major && l2 <= 0.5 * l1)
+            .then_some((u, half_apart))
     }
 
     /// Moves the tracks of markers labeled at the centre of a blob that has had about the
-    /// same lobes for [`LOBE_MIN_FRAMES`] labels ([`Labeler::lobes`]: a dot that a mole
+    /// same lobes for [`LOBE_MIN_FRAMES`] labels ([`Labeler::far_lobe`]: a dot that a mole
     /// came to touch, a first sighting before the neighbours were tracked) onto the dot's
     /// lobe (under head pose `pose`): from the next frame they are tracked there
     /// ([`Labeler::merged_dot`]), not between the dot and the mole.
@@ -768,7 +768,7 @@ impl Labeler {
     }
 
     /// Whether the blob at `x` in camera `c`, a candidate of marker `i`, lies where the far
-    /// lobe of the marker's last label was ([`Labeler::lobes`]), seen from `q`: where its
+    /// lobe of the marker's last label was ([`Labeler::far_lobe`]), seen from `q`: where its
     /// neighbours put the dot (`from_neighbours`), or where the marker was last labeled or
     /// is tracked to. Within half the lobe's offset: nearer to the far lobe than to the
     /// blob's centre or the dot's own place.
