@@ -220,6 +220,15 @@ fn labeler(layout: &MarkerLayout, pts: &[Point3<f64>]) -> Labeler {
     Labeler::new(rig, layout, pts.to_vec(), LabelParams::default()).unwrap()
 }
 
+/// [`labeler`], told the skin's normals at the markers ([`normal_at`]) when `normals`.
+fn labeler_with_normals(layout: &MarkerLayout, pts: &[Point3<f64>], normals: bool) -> Labeler {
+    let mut lab = labeler(layout, pts);
+    if normals {
+        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+    }
+    lab
+}
+
 #[test]
 fn acquires_under_arbitrary_head_poses() {
     let rig = crate::camera::default_helmet_rig().unwrap();
@@ -751,10 +760,7 @@ fn a_sliver_of_a_hidden_dot_is_not_taken_where_the_skin_faces_the_camera() {
     assert!(covered.len() >= 5, "{covered:?}");
     let covering = 10..20;
     let run = |normals: bool| -> (usize, usize, usize) {
-        let mut lab = labeler(&layout, &pts);
-        if normals {
-            assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
-        }
+        let mut lab = labeler_with_normals(&layout, &pts, normals);
         let mut rng = Rng::new(107);
         let (mut slivers_taken, mut others_labeled, mut others) = (0, 0, 0);
         for f in 0..30usize {
@@ -1436,10 +1442,7 @@ fn a_mole_merged_with_a_dot_is_not_taken_for_it_when_the_dot_is_wiped_off() {
     let wiped = [6, 15, 28, 40, 52, 66, 80];
     let mole_gone = [9, 22, 35, 47, 61];
     let run = |normals: bool| -> (usize, usize, usize) {
-        let mut lab = labeler(&layout, &pts);
-        if normals {
-            assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
-        }
+        let mut lab = labeler_with_normals(&layout, &pts, normals);
         let mut rng = Rng::new(112);
         let (mut wrong_total, mut kept, mut kept_seen) = (0, 0, 0);
         for f in 0..40usize {
@@ -1510,8 +1513,7 @@ fn a_dot_merged_with_a_mole_is_labeled_at_the_dot() {
     let pose = pose_facing(&rig, 230.0, Vector3::new(-0.2, 0.15, 0.0), Vector3::zeros());
     let cam1_from_head = cam1_from_head(&rig, &pose);
     let merged = [4, 11, 20, 31, 43, 57, 68, 79];
-    let mut lab = labeler(&layout, &pts);
-    assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+    let mut lab = labeler_with_normals(&layout, &pts, true);
     let mut rng = Rng::new(113);
     let (mut seen, mut labeled, mut worst) = (0, 0, 0.0f64);
     for f in 0..30usize {
