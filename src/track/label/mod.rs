@@ -995,10 +995,12 @@ impl Labeler {
         };
         stats.paired = stats.paired.max(pass.paired);
         stats.rejected += pass.rejected;
+        // The epipolar gate follows the detector's centroids: not a dot's lobe, estimated
+        // from a merged blob's shape.
         self.gate.update(
             pass.labels
                 .iter()
-                .filter(|l| l.confident)
+                .filter(|l| l.confident && l.at.is_none())
                 .map(|l| l.bundle.reprojection_px),
         );
         let mut seen = vec![false; m];
