@@ -63,7 +63,9 @@
 //! neighbours put the marker is the dot, where the marker is labeled (at a first
 //! sighting, unless the other lobe is within a rival's reach; a marker tracked onto such
 //! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
-//! A marker whose blobs stay smaller
+//! A marker never labeled since the acquisition is labeled only once found in
+//! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]). A marker whose
+//! blobs stay smaller
 //! than a whole dot of its paint can look, frame after frame, is not on its dot (a
 //! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
 //! it is labeled only on a blob a first sighting may have. When too few
@@ -96,6 +98,10 @@ use crate::stereo::{Bundle, PairParams};
 /// next frame search the whole region of interest instead of the windows (see
 /// [`Labeler::predicted_windows`]).
 pub const WINDOWS_KEEP_SHARE: f64 = 0.8;
+
+/// In how many frames in a row a marker never labeled since the acquisition must be found
+/// before it is labeled (see `Labeler::confirm_new_tracks`).
+pub const CONFIRM_FRAMES: usize = 2;
 
 /// Labeling settings.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -525,6 +531,9 @@ struct Track {
     /// the dot's lobe, see `Labeler::merged_dot`): the largest distance, pixels, from the
     /// blob's centre to the lobe in either camera; 0 otherwise.
     lobe_px: f64,
+    /// While never labeled since the acquisition: the frames in a row in which the marker
+    /// would have been labeled (see [`Labeler::confirm_new_tracks`]).
+    confirming: usize,
     /// Labeled frames in a row whose blobs were smaller than a first sighting may be
     /// ([`Labeler::smaller_than_a_whole_dot`]).
     small_blob_frames: usize,
@@ -985,7 +994,7 @@ impl Labeler {
             result = self.acquire(&pixels, &mut stats);
         }
         let mut out = vec![None; m];
-        let Some((pose, pass)) = result else {
+        let Some((pose, mut pass)) = result else {
             self.last_frame = None;
             self.seen_before = None;
             return LabeledFrame {
@@ -993,6 +1002,9 @@ impl Labeler {
                 stats,
             };
         };
+        if !stats.acquiring {
+            pass.rejected += self.confirm_new_tracks(&mut pass.labels);
+        }
         stats.paired = stats.paired.max(pass.paired);
         stats.rejected += pass.rejected;
         // The epipolar gate follows the detector's centroids: not a dot's lobe, estimated
@@ -1113,6 +1125,33 @@ impl Labeler {
         }
     }
 
+    /// Drops the labels of markers never labeled since the acquisition until they have
+    /// been found in [`CONFIRM_FRAMES`] frames in a row, and returns how many it dropped.
+    /// A marker the acquisition did not find (out of view, hidden, or wiped off before the
+    /// take) is looked for where its neighbours put it, with nothing else to go by: a mole
+    /// of a dot's size there may pass every check now and then (wiped-moles seed 5's M110
+    /// in a single frame; seed 7's M107 in runs of one to eight, which this does not
+    /// stop), a dot that comes into view frame after frame. A new track is confirmed
+    /// before it is reported, as trackers confirm tracks by M of N detections; a marker
+    /// labeled before keeps no such delay, nor do the acquisition's labels.
+    fn confirm_new_tracks(&mut self, labels: &mut Vec<Label>) -> usize {
+        let mut found = vec![false; self.tracks.len()];
+        for l in labels.iter() {
+            found[l.marker] = true;
+        }
+        for (track, &f) in self.tracks.iter_mut().zip(&found) {
+            if track.frames_since_seen.is_none() {
+                track.confirming = if f { track.confirming + 1 } else { 0 };
+            }
+        }
+        let before = labels.len();
+        labels.retain(|l| {
+            let t = &self.tracks[l.marker];
+            t.frames_since_seen.is_some() || t.confirming >= CONFIRM_FRAMES
+        });
+        before - labels.len()
+    }
+
     /// One search window per marker and camera around its predicted pixel next frame (see
     /// [`Labeler::predicted_windows`]), from the predictions with the final pass's gates,
     /// and the boxes of [`Labeler::predicted_centres`] in them.
@@ -1211,6 +1250,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             frames_since_seen: None,
             worn: false,
             lobe_px: 0.0,
+            confirming: 0,
             small_blob_frames: 0,
         })
         .collect()

@@ -1572,3 +1572,42 @@ fn a_dot_merged_with_a_mole_is_labeled_at_the_dot() {
         "a merged dot labeled {worst:.2} px off its centre"
     );
 }
+
+#[test]
+fn a_marker_never_seen_is_labeled_only_once_found_in_consecutive_frames() {
+    // Markers hidden from the first frame (the acquisition cannot find them) have, every
+    // other frame from frame 3 to 11, a dot-like blob 1 mm from their place (a mole that
+    // hair uncovers now and then); from frame 14 their dots come into view. The blobs are
+    // never labeled; the dots are, from their second frame in view.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(14);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let hidden = [5, 18, 30, 47, 63, 75];
+    let moles: Vec<Point3<f64>> = hidden
+        .iter()
+        .map(|&k| pts[k] + normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 1.0)
+        .collect();
+    let mut lab = labeler_with_normals(&layout, &pts, true);
+    let mut rng = Rng::new(114);
+    let mut moles_shown = 0;
+    for f in 0..20usize {
+        let hide = if f < 14 { hidden.to_vec() } else { Vec::new() };
+        let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
+        if (3..12).contains(&f) && f % 2 == 1 {
+            for mole in &moles {
+                add_blob(&rig, &pose, &mut obs, mole, |dot_px| (dot_px, 0.9, 1.0));
+                moles_shown += 1;
+            }
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let (_, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
+        let back = hidden.iter().filter(|&&k| out.markers[k].is_some()).count();
+        match f {
+            ..15 => assert_eq!(back, 0, "frame {f}"),
+            15.. => assert_eq!(back, hidden.len(), "frame {f}"),
+        }
+    }
+    assert_eq!(moles_shown, 5 * hidden.len());
+}
