@@ -571,8 +571,8 @@ impl Labeler {
             // Where the neighbours put the marker, asked only of a blob with lobes.
             let point = &l.bundle.point_in_cam0;
             let normal = self.normals.get(l.marker).map(|n| pose.rotation * n);
-            let split = [0, 1]
-                .map(|c| normal.and_then(|n| self.lobe_split(point, &n, c, l.det[c]).map(|_| n)));
+            let split =
+                [0, 1].map(|c| normal.and_then(|n| self.lobe_split(point, &n, c, l.det[c])));
             let neighbours = split
                 .iter()
                 .any(Option::is_some)
@@ -586,7 +586,7 @@ impl Labeler {
                 let x = l.at.map_or(centre, |at| at[c]);
                 let far = split[c]
                     .zip(neighbours.and_then(|q| q[c]))
-                    .and_then(|(n, q)| self.far_lobe(point, &n, c, l.det[c], centre, q));
+                    .and_then(|(split, q)| self.far_side(split, centre, q));
                 // The far lobe from the label's pixel (the blob's centre, or the dot's lobe).
                 let lobes = far.map(|far| Lobes {
                     from_label: centre + far - x,
@@ -641,7 +641,18 @@ impl Labeler {
         x: Point2<f64>,
         q: Point2<f64>,
     ) -> Option<Vector2<f64>> {
-        let (u, half_apart) = self.lobe_split(point, normal, c, det)?;
+        self.far_side(self.lobe_split(point, normal, c, det)?, x, q)
+    }
+
+    /// The far lobe's offset from `x` of a blob at `x` with lobes `(u, half_apart)`
+    /// ([`Labeler::lobe_split`]), the dot expected at `q` (the side rule of
+    /// [`Labeler::far_lobe`]).
+    fn far_side(
+        &self,
+        (u, half_apart): (Vector2<f64>, f64),
+        x: Point2<f64>,
+        q: Point2<f64>,
+    ) -> Option<Vector2<f64>> {
         let along = (q - x).dot(&u);
         let off_axis = (q - x - along * u).norm();
         let near_lobe = (along.abs() - half_apart).hypot(off_axis);
