@@ -657,6 +657,8 @@ struct SeenBefore {
     looked: [Vec<Rect>; 2],
     /// Each marker's pixels where it was labeled (None: not labeled).
     markers: Vec<Option<[Point2<f64>; 2]>>,
+    /// The major axes of each labeled marker's blobs, pixels (NaN: not measured).
+    marker_blobs_px: Vec<Option<[f64; 2]>>,
 }
 
 impl SeenBefore {
@@ -1118,6 +1120,18 @@ impl Labeler {
             pixels: pixels.map(|p| p.into_iter().flatten().collect()),
             looked,
             markers: out.iter().map(|l| l.as_ref().map(|l| l.pixels)).collect(),
+            marker_blobs_px: out
+                .iter()
+                .map(|l| {
+                    l.as_ref().map(|l| {
+                        [0, 1].map(|c| {
+                            self.blobs[c]
+                                .get(l.detections[c])
+                                .map_or(f64::NAN, |b| b.diameter_px)
+                        })
+                    })
+                })
+                .collect(),
         });
         LabeledFrame {
             markers: out,

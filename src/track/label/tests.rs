@@ -1101,6 +1101,63 @@ fn a_marker_that_starts_moving_fast_is_kept_and_a_mole_where_one_vanished_is_not
 }
 
 #[test]
+fn a_piece_of_a_long_blob_that_split_off_is_not_taken_for_a_sudden_move() {
+    // A smudged dot (its blob 1.6 dots long) tracked for 20 frames, then split by the
+    // detector: all that is left is a piece 8 px (cam0) from the smear's centre, beyond
+    // the tight gate, inside the pose pass's wide one, where the last frame had no blob.
+    // A piece 0.65 of a dot long is not the dot jumping (labeling it would put the marker
+    // 8 px off); the whole smear landing there is.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(8);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let cam1 = cam1_from_head(&rig, &pose);
+    let k = (0..pts.len())
+        .find(|&k| pts[k].y < -20.0 && pts[k].x.abs() < 30.0)
+        .unwrap();
+    let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
+    let at = |p: Point3<f64>| rig.cam0.project(&(pose * p).coords).unwrap();
+    let px_per_mm = (at(pts[k] + side) - at(pts[k])).norm();
+    let piece = pts[k] + side * (8.0 / px_per_mm);
+    let run = |piece_length: f64| -> Vec<bool> {
+        let mut lab = labeler(&layout, &pts);
+        let mut rng = Rng::new(112);
+        let mut labeled = Vec::new();
+        for f in 0..25usize {
+            let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+            for (c, cam_from_head) in [(0, pose), (1, cam1)] {
+                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+                let (dets, truth) = &mut obs[c];
+                let Some(d) = truth.iter().position(|&t| t == Some(k)) else {
+                    continue;
+                };
+                let dot_px = dets[d].diameter_px;
+                if f < 20 {
+                    dets[d].diameter_px = 1.6 * dot_px;
+                } else {
+                    let pc = cam_from_head * piece;
+                    dets[d].centre_px = cam.project(&pc.coords).unwrap();
+                    dets[d].diameter_px = piece_length * dot_px;
+                }
+            }
+            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+            labeled.push(out.markers[k].is_some());
+        }
+        labeled
+    };
+    let piece_taken = run(0.65);
+    let whole_taken = run(1.6);
+    assert!(piece_taken[3..20].iter().all(|&l| l), "{piece_taken:?}");
+    assert!(
+        !piece_taken[20],
+        "the piece taken for the dot: {piece_taken:?}"
+    );
+    assert!(
+        whole_taken[20],
+        "the whole smear's jump not taken: {whole_taken:?}"
+    );
+}
+
+#[test]
 fn one_neighbour_moving_unlike_the_rest_does_not_move_where_the_neighbours_put_a_marker() {
     let (layout, pts) = face(9);
     let mut lab = labeler(&layout, &pts);

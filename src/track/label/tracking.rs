@@ -22,6 +22,14 @@ pub(super) const SMALL_BLOB_FRAMES: usize = 4;
 /// chin dot 11-15 px from that place had a mole of its size 4-7 px from it.
 const BEYOND_GATE: f64 = 2.0;
 
+/// A marker labeled after a sudden move (see `Labeler::label_sudden_moves`) must have a
+/// blob at least this share of its last frame's as long, in each camera where it moved
+/// beyond its gate: a dot that jumps keeps its length (motion blur only adds to it), a
+/// piece of a long blob that split does not (on cluttered seed 77 a smudged dot 24-26 px
+/// long split into pieces of 10-11 px, one of them 7 px from the smear's centre, 10 px
+/// from the dot's).
+const SUDDEN_MOVE_MIN_LENGTH_RATIO: f64 = 0.7;
+
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
 /// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
 /// `Labeler::far_lobe`): a lone dot 10 % larger than the profile says looks like lobes
@@ -476,6 +484,8 @@ impl Labeler {
     ///   worn dot, and its detections are still free;
     /// - the dot left its place: no blob within the tight gate of the prediction in
     ///   either camera;
+    /// - its blob is whole: in each camera where it lies beyond the tight gate, at least
+    ///   [`SUDDEN_MOVE_MIN_LENGTH_RATIO`] of the last frame's blob's length;
     /// - its blob is new where it is: in each camera where it lies beyond the tight
     ///   gate, the last frame had no blob within half a tight gate of the place the blob
     ///   came from if it were skin (moved as the prediction moved since the last frame),
@@ -530,6 +540,19 @@ impl Labeler {
                 }
                 if (x - q).norm() > pr.gate_px {
                     moved_away = true;
+                    let was = before
+                        .marker_blobs_px
+                        .get(i)
+                        .copied()
+                        .flatten()
+                        .map_or(f64::NAN, |px| px[c]);
+                    let is = self.blobs[c]
+                        .get(l.det[c])
+                        .map_or(f64::NAN, |b| b.diameter_px);
+                    if is < SUDDEN_MOVE_MIN_LENGTH_RATIO * was {
+                        ok = false;
+                        break;
+                    }
                     let came_from = x - (q - last[c]);
                     if !before.nothing_near(c, came_from, 0.5 * pr.gate_px) {
                         ok = false;
