@@ -30,6 +30,19 @@ const BEYOND_GATE: f64 = 2.0;
 /// from the dot's).
 const SUDDEN_MOVE_MIN_LENGTH_RATIO: f64 = 0.7;
 
+/// A tracked marker's blob that became longer than this share of the largest a whole dot
+/// there can look, and [`MERGED_GROWTH`] times its last frame's blob, is the dot merged
+/// with something beside it (see `Labeler::grew_past_a_dot`).
+const MERGED_DOT_RATIO: f64 = 1.25;
+
+/// See [`MERGED_DOT_RATIO`]: a dot coming out from under a lip grows up to twice from a
+/// half, but not past a whole dot; a smeared dot is long but stays so.
+const MERGED_GROWTH: f64 = 1.5;
+
+/// See `Labeler::grew_past_a_dot`: a blob that grew by `g` on one side has its centre
+/// `g/2` off the dot's.
+const MERGED_SHIFT: f64 = 0.25;
+
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
 /// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
 /// `Labeler::far_lobe`): a lone dot 10 % larger than the profile says looks like lobes
@@ -277,6 +290,48 @@ impl Labeler {
         let (_, j) = cam.project_with_jacobian(&p)?;
         let (s1, _) = singular_values(&j);
         Some(hi * self.params.dot_diameter_mm * s1 + 2.0)
+    }
+
+    /// Whether marker `i`'s blobs `det` (at `x`, cam0 and cam1) grew past a whole dot on
+    /// one side since the last frame, where the marker was labeled, predicted at `pr`: in
+    /// either camera, longer than [`MERGED_DOT_RATIO`] of the largest a dot there can look
+    /// and than [`MERGED_GROWTH`] times its last blob, plus its image motion (a blur), with
+    /// its centre off the prediction along its axis by at least [`MERGED_SHIFT`] of the
+    /// growth (and 2 px). Such a blob is the dot merged with something at its side (a
+    /// mole, a lash, an eyelid's edge; on wide-mixed seed 1 a dot 19 px long became a
+    /// 34 px blob for two frames, its centre 5 px off the dot's): its centre is not the
+    /// dot's, and the marker is labeled at the dot's lobe ([`Labeler::merged_dot`]) or
+    /// not at all. A blob that grew about its centre (a hair across it) is still centred
+    /// on the dot.
+    pub(super) fn grew_past_a_dot(
+        &self,
+        i: usize,
+        pr: &Prediction,
+        det: [usize; 2],
+        x: [Point2<f64>; 2],
+    ) -> bool {
+        let Some(was) = self
+            .seen_before
+            .as_ref()
+            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten())
+        else {
+            return false;
+        };
+        (0..2).any(|c| {
+            let (Some(blob), Some(q), Some(whole)) = (
+                self.blobs[c].get(det[c]),
+                pr.pixels[c],
+                self.largest_dot_px(&pr.point, c, MERGED_DOT_RATIO),
+            ) else {
+                return false;
+            };
+            let (is, motion) = (blob.diameter_px, pr.motion_px[c]);
+            let grew = is - was[c];
+            let shift = blob.axis.map_or(0.0, |u| (x[c] - q).dot(&u).abs());
+            is > whole + motion
+                && is > MERGED_GROWTH * was[c] + motion
+                && shift >= (MERGED_SHIFT * grew).max(2.0)
+        })
     }
 
     /// Constant-velocity prediction of the head pose `steps` frames after the last one.
@@ -1060,12 +1115,17 @@ impl Labeler {
                     .filter(|b| (b.point_in_cam0 - pr.point).norm() <= reach * pr.gate_mm)
             };
             // A dot merged with a blob beside it is labeled at its lobe: at a first sighting
-            // where the neighbours put it, and then as it is tracked there.
-            if (pr.merged || pr.first_sighting)
+            // where the neighbours put it, and then as it is tracked there; a tracked dot
+            // whose blob grew on one side, as soon as it did, or not at all.
+            let grew = !pr.first_sighting && self.grew_past_a_dot(i, pr, [a, b], [x0, x1]);
+            if (pr.merged || pr.first_sighting || grew)
                 && let Some(at) = self.merged_dot(pr, [a, b], [x0, x1])
                 && let Some(bundle) = gated(at)
             {
                 return Some((bundle, Fit::Merged(at)));
+            }
+            if grew {
+                return None;
             }
             if let Some(bundle) = gated([x0, x1]) {
                 let dot = self.dot_sized(
