@@ -318,19 +318,18 @@ impl Labeler {
             return false;
         };
         (0..2).any(|c| {
-            let (Some(blob), Some(q), Some(whole)) = (
-                self.blobs[c].get(det[c]),
-                pr.pixels[c],
-                self.largest_dot_px(&pr.point, c, MERGED_DOT_RATIO),
-            ) else {
+            let (Some(blob), Some(q)) = (self.blobs[c].get(det[c]), pr.pixels[c]) else {
                 return false;
             };
             let (is, motion) = (blob.diameter_px, pr.motion_px[c]);
             let grew = is - was[c];
             let shift = blob.axis.map_or(0.0, |u| (x[c] - q).dot(&u).abs());
-            is > whole + motion
-                && is > MERGED_GROWTH * was[c] + motion
+            // The lens's Jacobian last: most blobs did not grow.
+            is > MERGED_GROWTH * was[c] + motion
                 && shift >= (MERGED_SHIFT * grew).max(2.0)
+                && self
+                    .largest_dot_px(&pr.point, c, MERGED_DOT_RATIO)
+                    .is_some_and(|whole| is > whole + motion)
         })
     }
 
