@@ -630,6 +630,12 @@ struct Prediction {
     last_seen: Option<StereoPixels>,
     /// `pixels` are where the marker's neighbours put it (not its track's place).
     from_neighbours: bool,
+    /// For a marker looked for where it was last seen (the tracking's third pass): where
+    /// its neighbours put it, which [`Labeler::stood_beside`] also asks from. A marker gone
+    /// for long was last seen where its skin no longer is (wiped-moles seed 93's M015,
+    /// 114 frames after its dot was wiped: 6.7 px off), and a mole that stood beside its
+    /// dot is off its remembered offset from there, not from where the neighbours put it.
+    neighbours_place: Option<StereoPixels>,
     /// The marker's last label, in the last frame, was a dot merged with a blob beside it.
     merged: bool,
 }

@@ -1381,6 +1381,71 @@ fn a_mole_that_stood_beside_a_marker_is_not_taken_for_it_while_the_marker_is_gon
 }
 
 #[test]
+fn a_mole_beside_a_marker_gone_for_long_is_not_taken_where_it_was_last_seen() {
+    // Lower-face markers with a mole of a dot's size 12 px (cam0) from their dot, hidden
+    // from frame 10 on (smudged off); then the skin around each (the marker, its mole and
+    // its six nearest markers) drifts 8 px toward the mole over ten frames. Where a
+    // marker was last seen is now 8 px off its skin, and the mole 4 px from that place:
+    // nothing like its remembered offset from there, but just that from where the
+    // neighbours (which drifted too) put the marker.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(11);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(114);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let at = |p: Point3<f64>| rig.cam0.project(&(pose * p).coords).unwrap();
+    let mut hidden: Vec<usize> = Vec::new();
+    for (k, p) in pts.iter().enumerate() {
+        if hidden.len() < 2
+            && p.y < -15.0
+            && p.x.abs() < 40.0
+            && hidden.iter().all(|&j| (pts[j] - p).norm() > 50.0)
+        {
+            hidden.push(k);
+        }
+    }
+    assert_eq!(hidden.len(), 2);
+    // Per hidden marker: the skin's way (head frame), 1 mm on it in cam0 pixels, and the
+    // markers that drift with it.
+    let patches: Vec<(Vector3<f64>, f64, Vec<usize>)> = hidden
+        .iter()
+        .map(|&k| {
+            let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
+            let mut near: Vec<usize> = (0..pts.len()).collect();
+            near.sort_by(|&a, &b| {
+                (pts[a] - pts[k])
+                    .norm()
+                    .total_cmp(&(pts[b] - pts[k]).norm())
+            });
+            near.truncate(7);
+            (side, (at(pts[k] + side) - at(pts[k])).norm(), near)
+        })
+        .collect();
+    let mut wrong_total = 0;
+    for f in 0..40usize {
+        let progress = (f.clamp(10, 20) - 10) as f64 / 10.0;
+        let mut moved = pts.clone();
+        let mut moles = Vec::new();
+        for (&k, (side, px_per_mm, near)) in hidden.iter().zip(&patches) {
+            let drift = side * (8.0 / px_per_mm * progress);
+            for &j in near {
+                moved[j] = pts[j] + drift;
+            }
+            moles.push(pts[k] - side * (12.0 / px_per_mm) + drift);
+        }
+        let hide: Vec<usize> = if f >= 10 { hidden.clone() } else { Vec::new() };
+        let mut obs = observe(&rig, &pose, &moved, &hide, 0.15, 0, &mut rng);
+        for mole in &moles {
+            add_blob(&rig, &pose, &mut obs, mole, |dot_px| (dot_px, 0.9, 1.0));
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        wrong_total += count(&out, &truth).1;
+    }
+    assert_eq!(wrong_total, 0, "moles taken for their markers");
+}
+
+#[test]
 fn a_marker_that_stops_dead_after_moving_fast_is_kept() {
     // Two lower-face markers moving 3 mm a frame for four frames, then still: the first
     // still frame's prediction carries the damped velocity (2.4 mm, about 9 px) past the

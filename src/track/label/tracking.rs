@@ -428,6 +428,7 @@ impl Labeler {
                 Prediction {
                     last_seen,
                     from_neighbours: neighbours_head.is_some(),
+                    neighbours_place: None,
                     merged: t.frames_since_seen == Some(0) && t.lobe_px > 0.0,
                     point,
                     pixels,
@@ -950,7 +951,8 @@ impl Labeler {
     /// image together) leave the interpolation to farther ones, whose motion may differ by
     /// a lip's; a marker that left one camera's image and stayed whole in the other is
     /// often still where it was. The pass labels among the detections left free, with the
-    /// other markers not labeled as rivals, and takes its labels of those markers only.
+    /// other markers not labeled as rivals, and takes its labels of those markers only; a
+    /// blob that stood beside the marker's dot is refused from either place.
     fn label_where_last_seen(
         &self,
         pose: &Isometry3<f64>,
@@ -978,6 +980,8 @@ impl Labeler {
                 pr.pixels = [None, None];
             } else if !retry[i] {
                 *pr = tight[i];
+            } else if tight[i].from_neighbours {
+                pr.neighbours_place = Some(tight[i].pixels);
             }
         }
         let mut free = pixels.clone();
@@ -1155,6 +1159,7 @@ impl Labeler {
             let small_for_long = self.tracks[i].small_blob_frames >= SMALL_BLOB_FRAMES
                 && self.smaller_than_a_whole_dot(&bundle.point_in_cam0, [a, b]);
             let last_seen = preds[i].last_seen.unwrap_or_default();
+            let neighbours_place = preds[i].neighbours_place.unwrap_or_default();
             let from_neighbours = preds[i].from_neighbours;
             small_for_long
                 || [pixels[0][a], pixels[1][b]]
@@ -1163,7 +1168,7 @@ impl Labeler {
                     .enumerate()
                     .any(|(c, (x, (q, l)))| {
                         x.is_some_and(|x| {
-                            [*q, l]
+                            [*q, l, neighbours_place[c]]
                                 .iter()
                                 .flatten()
                                 .any(|&q| self.stood_beside(i, c, x, q))
