@@ -1161,9 +1161,9 @@ fn a_piece_of_a_long_blob_that_split_off_is_not_taken_for_a_sudden_move() {
 fn a_dot_merged_with_something_at_its_side_is_not_labeled_at_the_blobs_centre() {
     // A tracked dot whose blob becomes 1.8 times as long for two frames (frames 20-21):
     // grown on one side (a lash or an eyelid's edge joining it), its centre 0.4 dots off
-    // the dot's, 5-6 px, inside the tight gate; or grown about its centre (a hair across
-    // it). The one-sided blob's centre is not the dot's: the marker is left out rather
-    // than put there; the centred one is still labeled.
+    // the dot's, about 3.5 px, inside the tight gate; or grown about its centre (a hair
+    // across it). The one-sided blob's centre is not the dot's: the marker is left out
+    // rather than put there; the centred one is still labeled.
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(9);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
