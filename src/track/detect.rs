@@ -1035,6 +1035,18 @@ fn split_and_measure(
             rejected.as_deref_mut(),
         );
     }
+    // A smeared dot (sweat, a wipe) is longer than a dot and may be split in pieces, none
+    // of them centred on the ink: the whole smear is reported too, when it is an ellipse
+    // up to `SMEAR_MAX_LENGTH` dots long (the labeler takes such a blob only where the
+    // marker's neighbours put it).
+    if depth == 0
+        && out.len() >= found_before + 2
+        && matches!(reason, RejectReason::NotRound | RejectReason::TooLarge)
+        && pieces_alike(&out[found_before..])
+        && let Some(smear) = whole_smear(image, pixels, params)
+    {
+        out.push(smear);
+    }
     // Hair as dark as the ink does not split off at any threshold: the component's core
     // without it (when the component is dark enough, and wide enough to hold one: see
     // `core_fits` above).
@@ -1063,6 +1075,44 @@ fn split_and_measure(
             reason,
         });
     }
+}
+
+/// How long a smeared dot reported whole beside its pieces may be, in the longest dot's
+/// lengths ([`split_and_measure`]).
+const SMEAR_MAX_LENGTH: f64 = 2.5;
+
+/// The smallest share of its ellipse a smeared dot reported whole fills.
+const SMEAR_MIN_FILL: f64 = 0.8;
+
+/// Whether the two largest of the parts a component split into are alike in area (the
+/// smaller at least a third of the larger): a smear breaks into pieces of its ink, a dot
+/// with a hair or a crease across to a freckle into the dot and a lesser blob.
+fn pieces_alike(parts: &[Detection]) -> bool {
+    let mut areas: Vec<usize> = parts.iter().map(|d| d.area_px).collect();
+    areas.sort_unstable_by(|a, b| b.cmp(a));
+    areas.len() >= 2 && 3 * areas[1] >= areas[0]
+}
+
+/// A component measured as a smeared dot: an ellipse at most [`SMEAR_MAX_LENGTH`] times as
+/// long as the longest dot, filled as an ellipse ([`SMEAR_MIN_FILL`]).
+fn whole_smear(
+    image: &GrayImage,
+    pixels: &[(usize, usize, u8)],
+    params: &DetectParams,
+) -> Option<Detection> {
+    let scale = SMEAR_MAX_LENGTH / 1.25;
+    let relaxed = DetectParams {
+        elongated_max_length_px: params.elongated_max_length_px * scale,
+        max_area_px: (params.max_area_px as f64 * scale * scale).ceil() as usize,
+        ..params.clone()
+    };
+    if pixels.len() > relaxed.max_area_px {
+        return None;
+    }
+    let d = measure_blob(image, pixels, &relaxed).ok()?;
+    let minor = d.diameter_px * d.roundness;
+    let fill = d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * minor);
+    (fill >= SMEAR_MIN_FILL).then_some(d)
 }
 
 /// The dot inside a component of candidate pixels that hair (or any other stroke at most
@@ -2144,6 +2194,53 @@ mod tests {
                     .is_empty()
             );
         }
+    }
+
+    #[test]
+    fn a_smeared_dot_split_in_pieces_is_also_found_whole() {
+        // A smear 28 px long (dots here are at most 12 px), its ink uneven: two darker
+        // cores 7 px either side of its centre, so the contrast threshold that splits it
+        // keeps the two pieces, each off the ink's centre. The whole smear is reported
+        // too, at its centre.
+        let params = DetectParams {
+            max_dot_px: 12.0,
+            ..DetectParams::default()
+        }
+        .scaled_to_dot_sizes();
+        let (cx, cy) = (100.3, 80.6);
+        let smear = image_with_patches(&[
+            (cx, cy, 14.0, 3.5, 30.0),
+            (cx - 7.0, cy, 3.5, 3.0, 40.0),
+            (cx + 7.0, cy, 3.5, 3.0, 40.0),
+        ]);
+        let found = detect_markers(&smear, &params);
+        let whole: Vec<&Detection> = found.iter().filter(|d| d.diameter_px > 20.0).collect();
+        assert_eq!(whole.len(), 1, "{found:?}");
+        let err = (whole[0].centre_px - Point2::new(cx, cy)).norm();
+        assert!(err < 0.5, "whole smear {err:.2} px off: {found:?}");
+        let pieces = found
+            .iter()
+            .filter(|d| d.diameter_px <= 20.0 && (d.centre_px.x - cx).abs() > 4.0)
+            .count();
+        assert_eq!(pieces, 2, "{found:?}");
+    }
+
+    #[test]
+    fn only_pieces_alike_in_area_make_a_smear() {
+        let part = |area_px: usize| Detection {
+            centre_px: Point2::origin(),
+            area_px,
+            roundness: 0.6,
+            contrast_dn: 60.0,
+            quality: 0.4,
+            diameter_px: 10.0,
+            axis_rad: 0.0,
+        };
+        assert!(pieces_alike(&[part(70), part(49)]));
+        assert!(pieces_alike(&[part(20), part(60), part(5)]));
+        // A dot and a freckle a quarter its size, or one piece: no smear.
+        assert!(!pieces_alike(&[part(80), part(20)]));
+        assert!(!pieces_alike(&[part(80)]));
     }
 
     /// A 320×200 image of gradient-lit skin darkened by discs `(cx, cy, r, depth)`
