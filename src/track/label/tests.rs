@@ -1158,6 +1158,44 @@ fn a_piece_of_a_long_blob_that_split_off_is_not_taken_for_a_sudden_move() {
 }
 
 #[test]
+fn a_piece_of_a_markers_last_blob_off_its_prediction_is_told() {
+    // A marker labeled in the last frame on blobs 24 px long: a blob 10 px long 8 px from
+    // its prediction is a piece of that blob off its place (a smear that split); a blob of
+    // 22 px there, or the 10 px piece within the tight gate (a dot partly hidden), is not.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(8);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(116);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    for f in 0..3usize {
+        let obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+        lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+    }
+    let k = (0..pts.len())
+        .find(|&k| lab.seen_before.as_ref().unwrap().markers[k].is_some())
+        .unwrap();
+    lab.seen_before.as_mut().unwrap().marker_blobs_px[k] = Some([24.0, 24.0]);
+    let pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
+    let q = pr.pixels.map(Option::unwrap);
+    let blob = |diameter_px: f64| {
+        BlobShape::of(&Detection {
+            centre_px: Point2::origin(),
+            area_px: 60,
+            roundness: 0.7,
+            contrast_dn: 60.0,
+            quality: 0.4,
+            diameter_px,
+            axis_rad: f64::NAN,
+        })
+    };
+    lab.blobs = [vec![blob(10.0), blob(22.0)], vec![blob(10.0), blob(22.0)]];
+    let off = |dx: f64| q.map(|q| q + Vector2::new(dx, 0.0));
+    assert!(lab.a_piece_off_its_blob(k, &pr, [0, 0], off(8.0)));
+    assert!(!lab.a_piece_off_its_blob(k, &pr, [1, 1], off(8.0)));
+    assert!(!lab.a_piece_off_its_blob(k, &pr, [0, 0], off(3.0)));
+}
+
+#[test]
 fn a_dot_merged_with_something_at_its_side_is_not_labeled_at_the_blobs_centre() {
     // A tracked dot whose blob becomes 1.8 times as long for two frames (frames 20-21):
     // grown on one side (a lash or an eyelid's edge joining it), its centre 0.4 dots off
