@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Matrix2, Point2, Point3, Vector2, Vector3};
 
 use super::assignment::assign_components;
-use super::{Label, Labeler, Lobes, PassResult, Prediction};
+use super::{BlobShape, Label, Labeler, Lobes, PassResult, Prediction};
 use crate::align::horn_alignment;
 use crate::stereo::{Bundle, TriangulateParams, triangulate};
 
@@ -310,22 +310,12 @@ impl Labeler {
         det: [usize; 2],
         x: [Point2<f64>; 2],
     ) -> bool {
-        let Some(was) = self
-            .seen_before
-            .as_ref()
-            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten())
-        else {
-            return false;
-        };
-        (0..2).any(|c| {
-            let (Some(blob), Some(q)) = (self.blobs[c].get(det[c]), pr.pixels[c]) else {
-                return false;
-            };
+        self.against_last_blob(i, pr, det, |c, blob, q, was| {
             let (is, motion) = (blob.diameter_px, pr.motion_px[c]);
-            let grew = is - was[c];
+            let grew = is - was;
             let shift = blob.axis.map_or(0.0, |u| (x[c] - q).dot(&u).abs());
             // The lens's Jacobian last: most blobs did not grow.
-            is > MERGED_GROWTH * was[c] + motion
+            is > MERGED_GROWTH * was + motion
                 && shift >= (MERGED_SHIFT * grew).max(2.0)
                 && self
                     .largest_dot_px(&pr.point, c, MERGED_DOT_RATIO)
@@ -347,6 +337,22 @@ impl Labeler {
         det: [usize; 2],
         x: [Point2<f64>; 2],
     ) -> bool {
+        self.against_last_blob(i, pr, det, |c, blob, q, was| {
+            blob.diameter_px < SUDDEN_MOVE_MIN_LENGTH_RATIO * was
+                && (x[c] - q).norm() > self.params.gate_px
+        })
+    }
+
+    /// Whether `test(c, blob, q, was)` holds in either camera `c` for marker `i`'s blob
+    /// there (of detections `det`), predicted at `q` (`pr`'s pixel), `was` the major axis
+    /// of its blob there in the last frame; false when the marker was not labeled then.
+    fn against_last_blob(
+        &self,
+        i: usize,
+        pr: &Prediction,
+        det: [usize; 2],
+        test: impl Fn(usize, &BlobShape, Point2<f64>, f64) -> bool,
+    ) -> bool {
         let Some(was) = self
             .seen_before
             .as_ref()
@@ -354,12 +360,9 @@ impl Labeler {
         else {
             return false;
         };
-        (0..2).any(|c| {
-            let (Some(blob), Some(q)) = (self.blobs[c].get(det[c]), pr.pixels[c]) else {
-                return false;
-            };
-            blob.diameter_px < SUDDEN_MOVE_MIN_LENGTH_RATIO * was[c]
-                && (x[c] - q).norm() > self.params.gate_px
+        (0..2).any(|c| match (self.blobs[c].get(det[c]), pr.pixels[c]) {
+            (Some(blob), Some(q)) => test(c, blob, q, was[c]),
+            _ => false,
         })
     }
 
