@@ -22,13 +22,13 @@ pub(super) const SMALL_BLOB_FRAMES: usize = 4;
 /// chin dot 11-15 px from that place had a mole of its size 4-7 px from it.
 const BEYOND_GATE: f64 = 2.0;
 
-/// A marker labeled after a sudden move (see `Labeler::label_sudden_moves`) must have a
-/// blob at least this share of its last frame's as long, in each camera where it moved
-/// beyond its gate: a dot that jumps keeps its length (motion blur only adds to it), a
-/// piece of a long blob that split does not (on cluttered seed 77 a smudged dot 24-26 px
+/// A tracked marker's blob beyond the tight gate of its prediction must be at least this
+/// share of its last frame's as long (see `Labeler::a_piece_off_its_blob`): a dot that
+/// jumps keeps its length (motion blur only adds to it), a piece of a long blob that split
+/// does not (on cluttered seed 77 a smudged dot 24-26 px
 /// long split into pieces of 10-11 px, one of them 7 px from the smear's centre, 10 px
 /// from the dot's).
-const SUDDEN_MOVE_MIN_LENGTH_RATIO: f64 = 0.7;
+const WHOLE_BLOB_MIN_LENGTH_RATIO: f64 = 0.7;
 
 /// A tracked marker's blob that became longer than this share of the largest a whole dot
 /// there can look, and [`MERGED_GROWTH`] times its last frame's blob, is the dot merged
@@ -303,7 +303,7 @@ impl Labeler {
     /// dot's, and the marker is labeled at the dot's lobe ([`Labeler::merged_dot`]) or
     /// not at all. A blob that grew about its centre (a hair across it) is still centred
     /// on the dot.
-    pub(super) fn grew_past_a_dot(
+    fn grew_past_a_dot(
         &self,
         i: usize,
         pr: &Prediction,
@@ -325,7 +325,7 @@ impl Labeler {
 
     /// Whether marker `i`'s blobs `det` (at `x`), where it was labeled in the last frame
     /// and is predicted at `pr`, are in either camera a piece of its last blob off its
-    /// place: shorter than [`SUDDEN_MOVE_MIN_LENGTH_RATIO`] of the last blob and beyond
+    /// place: shorter than [`WHOLE_BLOB_MIN_LENGTH_RATIO`] of the last blob and beyond
     /// the tight gate of the prediction (inside the marker's gate only as that gate was
     /// widened by its motion or a merged blob's lobes). A long blob (a smeared dot) that
     /// split leaves pieces up to half its length off the ink's centre; on cluttered seed 77
@@ -338,7 +338,7 @@ impl Labeler {
         x: [Point2<f64>; 2],
     ) -> bool {
         self.against_last_blob(i, pr, det, |c, blob, q, was| {
-            blob.diameter_px < SUDDEN_MOVE_MIN_LENGTH_RATIO * was
+            blob.diameter_px < WHOLE_BLOB_MIN_LENGTH_RATIO * was
                 && (x[c] - q).norm() > self.params.gate_px
         })
     }
@@ -572,8 +572,8 @@ impl Labeler {
     ///   worn dot, and its detections are still free;
     /// - the dot left its place: no blob within the tight gate of the prediction in
     ///   either camera;
-    /// - its blob is whole: in each camera where it lies beyond the tight gate, at least
-    ///   [`SUDDEN_MOVE_MIN_LENGTH_RATIO`] of the last frame's blob's length;
+    /// - its blob is whole: not a piece of the last frame's blob off its place
+    ///   ([`Labeler::a_piece_off_its_blob`]);
     /// - its blob is new where it is: in each camera where it lies beyond the tight
     ///   gate, the last frame had no blob within half a tight gate of the place the blob
     ///   came from if it were skin (moved as the prediction moved since the last frame),
@@ -611,6 +611,11 @@ impl Labeler {
             let Some(last) = before.markers.get(i).copied().flatten() else {
                 continue;
             };
+            if let (Some(x0), Some(x1)) = (pixels[0][l.det[0]], pixels[1][l.det[1]])
+                && self.a_piece_off_its_blob(i, pr, l.det, [x0, x1])
+            {
+                continue;
+            }
             let mut moved_away = false;
             let mut ok = true;
             for c in 0..2 {
@@ -628,19 +633,6 @@ impl Labeler {
                 }
                 if (x - q).norm() > pr.gate_px {
                     moved_away = true;
-                    let was = before
-                        .marker_blobs_px
-                        .get(i)
-                        .copied()
-                        .flatten()
-                        .map_or(f64::NAN, |px| px[c]);
-                    let is = self.blobs[c]
-                        .get(l.det[c])
-                        .map_or(f64::NAN, |b| b.diameter_px);
-                    if is < SUDDEN_MOVE_MIN_LENGTH_RATIO * was {
-                        ok = false;
-                        break;
-                    }
                     let came_from = x - (q - last[c]);
                     if !before.nothing_near(c, came_from, 0.5 * pr.gate_px) {
                         ok = false;
