@@ -369,6 +369,7 @@ fn acquisition_with_clutter(
                         quality: rng.random_range(0.2..0.8),
                         diameter_px: diameter,
                         axis_rad: rng.random_range(-1.5..1.5),
+                        streak: false,
                     });
                 }
                 d

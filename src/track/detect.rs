@@ -242,6 +242,11 @@ pub struct Detection {
     /// Direction of that major axis, radians from the image's +x axis towards +y, in
     /// `[−π/2, π/2]` (meaningless for a round blob); NaN when not measured.
     pub axis_rad: f64,
+    /// A streak thinner than any whole dot (roundness under
+    /// [`DetectParams::elongated_min_roundness`]), reported as a dot seen far from its
+    /// normal and smeared along its length may look: only a worn dot's blob, where the
+    /// marker's neighbours put it (the labeler takes it for nothing else).
+    pub streak: bool,
 }
 
 /// Why a blob of candidate pixels is not a dot.
@@ -1060,6 +1065,15 @@ fn split_and_measure(
     {
         out.push(core);
     }
+    // A dot seen far from its normal and smeared along its length is one thin streak,
+    // thinner than any dot and in no pieces: reported whole when it is a filled ellipse.
+    if depth == 0
+        && out.len() == found_before
+        && reason == RejectReason::NotRound
+        && let Some(smear) = whole_smear(image, pixels, params)
+    {
+        out.push(smear);
+    }
     // A blob none of whose parts is a dot is listed once, at the top of its splitting.
     if depth == 0
         && out.len() == found_before
@@ -1094,7 +1108,10 @@ fn pieces_alike(parts: &[Detection]) -> bool {
 }
 
 /// A component measured as a smeared dot: an ellipse at most [`SMEAR_MAX_LENGTH`] times as
-/// long as the longest dot, filled as an ellipse ([`SMEAR_MIN_FILL`]).
+/// long as the longest dot, filled as an ellipse ([`SMEAR_MIN_FILL`]), and as thin as a
+/// dot seen edge-on smeared to that length (roundness down to
+/// [`DetectParams::elongated_min_roundness`] over the same factor); one thinner than any
+/// whole dot is told as a [`Detection::streak`].
 fn whole_smear(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
@@ -1103,15 +1120,17 @@ fn whole_smear(
     let scale = SMEAR_MAX_LENGTH / 1.25;
     let relaxed = DetectParams {
         elongated_max_length_px: params.elongated_max_length_px * scale,
+        elongated_min_roundness: params.elongated_min_roundness / scale,
         max_area_px: (params.max_area_px as f64 * scale * scale).ceil() as usize,
         ..params.clone()
     };
     if pixels.len() > relaxed.max_area_px {
         return None;
     }
-    let d = measure_blob(image, pixels, &relaxed).ok()?;
+    let mut d = measure_blob(image, pixels, &relaxed).ok()?;
     let minor = d.diameter_px * d.roundness;
     let fill = d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * minor);
+    d.streak = d.roundness < params.elongated_min_roundness;
     (fill >= SMEAR_MIN_FILL).then_some(d)
 }
 
@@ -1491,6 +1510,7 @@ fn measure_blob(
         quality: quality.clamp(0.0, 1.0),
         diameter_px: diameter,
         axis_rad,
+        streak: false,
     })
 }
 
@@ -1725,9 +1745,11 @@ mod tests {
         };
         assert!(detect_markers(&img, &strict).len() < 3);
         // A crease-like dark streak 20 px long and 2 px wide, and a faint short one
-        // (contrast of a shading band): neither is a dot.
+        // (contrast of a shading band): neither is a dot (the dark one, thinner than any
+        // dot, is told as a streak: a worn dot's blob at most).
         let streaks = image_with_ellipses(&[(60.0, 40.0, 10.0, 1.0, 0.5)]);
-        assert!(detect_markers(&streaks, &DetectParams::default()).is_empty());
+        let found = detect_markers(&streaks, &DetectParams::default());
+        assert!(found.iter().all(|d| d.streak), "{found:?}");
         let mut faint = image_with_ellipses(&[]);
         let ink = image_with_ellipses(&[(120.0, 60.0, 3.75, 0.8, 0.0)]);
         for (f, i) in faint.data.iter_mut().zip(&ink.data) {
@@ -2226,6 +2248,36 @@ mod tests {
     }
 
     #[test]
+    fn a_streak_thinner_than_any_dot_is_found_whole_and_told() {
+        // A dot seen 77° from its normal and smeared along its length: 27 px long and
+        // under 4 px wide (roundness about 0.13, under any whole dot's 0.15), in one piece.
+        // It is reported whole, at its centre, as a streak; a dot seen edge-on beside it
+        // (roundness about 0.3) is a plain dot.
+        let params = DetectParams {
+            max_dot_px: 20.0,
+            ..DetectParams::default()
+        }
+        .scaled_to_dot_sizes();
+        let streak = (60.3, 60.6, 13.0, 1.3, 0.4);
+        let edge_on = (140.2, 60.4, 6.0, 1.6, -0.3);
+        let found = detect_markers(&image_with_ellipses(&[streak, edge_on]), &params);
+        let near = |x: f64, y: f64| {
+            found
+                .iter()
+                .filter(|d| (d.centre_px - Point2::new(x, y)).norm() < 3.0)
+                .collect::<Vec<_>>()
+        };
+        let s = near(streak.0, streak.1);
+        assert_eq!(s.len(), 1, "{found:?}");
+        assert!(s[0].streak && s[0].roundness < params.elongated_min_roundness);
+        let err = (s[0].centre_px - Point2::new(streak.0, streak.1)).norm();
+        assert!(err < 0.3, "streak {err:.2} px off: {found:?}");
+        let e = near(edge_on.0, edge_on.1);
+        assert_eq!(e.len(), 1, "{found:?}");
+        assert!(!e[0].streak, "{:?}", e[0]);
+    }
+
+    #[test]
     fn only_pieces_alike_in_area_make_a_smear() {
         let part = |area_px: usize| Detection {
             centre_px: Point2::origin(),
@@ -2235,6 +2287,7 @@ mod tests {
             quality: 0.4,
             diameter_px: 10.0,
             axis_rad: 0.0,
+            streak: false,
         };
         assert!(pieces_alike(&[part(70), part(49)]));
         assert!(pieces_alike(&[part(20), part(60), part(5)]));

@@ -24,11 +24,14 @@ impl Labeler {
         stats: &mut LabelStats,
     ) -> Option<(Isometry3<f64>, PassResult)> {
         // Pair only finite detections, at most the best few hundred by quality per image,
-        // remembering their original indices.
+        // remembering their original indices; never a streak (only a worn dot's blob,
+        // which the neighbours of a tracked marker vouch for).
         let max = self.params.acquire_max_detections;
         let chosen: [Vec<usize>; 2] = [0, 1].map(|c| {
             let mut idx: Vec<usize> = (0..pixels[c].len())
-                .filter(|&a| pixels[c][a].is_some())
+                .filter(|&a| {
+                    pixels[c][a].is_some() && self.blobs[c].get(a).is_none_or(|b| !b.streak)
+                })
                 .collect();
             if idx.len() > max {
                 let quality = |a: usize| self.blobs[c].get(a).map_or(0.0, |b| b.quality);

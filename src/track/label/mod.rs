@@ -695,6 +695,8 @@ struct BlobShape {
     fill: f64,
     /// Unit vector along [`Detection::axis_rad`]; None when not measured.
     axis: Option<Vector2<f64>>,
+    /// [`Detection::streak`].
+    streak: bool,
 }
 
 impl BlobShape {
@@ -709,6 +711,7 @@ impl BlobShape {
                 .axis_rad
                 .is_finite()
                 .then(|| Vector2::new(d.axis_rad.cos(), d.axis_rad.sin())),
+            streak: d.streak,
         }
     }
 }

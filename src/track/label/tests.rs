@@ -155,6 +155,7 @@ fn observe(
                 quality: 0.5,
                 diameter_px: *diameter,
                 axis_rad: f64::NAN,
+                streak: false,
             })
             .collect();
         (dets, items.iter().map(|x| x.1).collect())
@@ -186,6 +187,7 @@ fn add_blob(
             quality: 0.3,
             diameter_px: diameter,
             axis_rad: f64::NAN,
+            streak: false,
         });
         obs[c].1.push(None);
         Some(px)
@@ -296,6 +298,7 @@ fn acquires_with_a_freckle_on_every_dots_epipolar_line() {
             quality: 0.5,
             diameter_px: diameter,
             axis_rad: f64::NAN,
+            streak: false,
         });
         obs[1].1.push(None);
     }
@@ -339,6 +342,7 @@ fn no_acquisition_without_a_face() {
             quality: 0.5,
             diameter_px: 8.0,
             axis_rad: f64::NAN,
+            streak: false,
         })
         .collect();
     let px1: Vec<Detection> = cloud
@@ -352,6 +356,7 @@ fn no_acquisition_without_a_face() {
             quality: 0.5,
             diameter_px: 8.0,
             axis_rad: f64::NAN,
+            streak: false,
         })
         .collect();
     let out = lab.process(FrameIndex::new(0), [&px0, &px1]);
@@ -535,6 +540,7 @@ fn never_panics_on_garbage_and_recovers() {
         quality: f64::INFINITY,
         diameter_px: f64::NAN,
         axis_rad: f64::NAN,
+        streak: false,
     };
     let garbage = vec![
         bad(f64::NAN, 3.0),
@@ -969,6 +975,99 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
 }
 
 #[test]
+fn a_streak_is_labeled_only_as_a_worn_dot() {
+    // The head turned so that the markers on one side are seen 45-73° from their normal.
+    // From frame 2 on, some of those markers' blobs are streaks thinner than any dot
+    // (roundness 0.12) a dot long: at 57° or more in both cameras the shape rules (with
+    // the normals' slack) take them for dots. Others are streaks twice a dot long centred
+    // on the dot (a dot seen obliquely and smeared). Told as streaks, only the long ones
+    // are labeled (as worn dots).
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(9);
+    let pose = pose_facing(&rig, 230.0, Vector3::new(0.0, 0.55, 0.0), Vector3::zeros());
+    let cam1_from_head = cam1_from_head(&rig, &pose);
+    // The marker's view angles in both cameras, degrees, smaller first.
+    let angles = |k: usize| {
+        let [a, b] = [pose, cam1_from_head].map(|cam_from_head| {
+            let p = cam_from_head * pts[k];
+            let n = cam_from_head.rotation * normal_at(&pts[k]);
+            n.dot(&(-p.coords.normalize()))
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        });
+        (a.min(b), a.max(b))
+    };
+    let angle = |k: usize| angles(k).0;
+    let seen = |k: usize| angles(k).1 < 73.0;
+    let short: Vec<usize> = (0..pts.len())
+        .filter(|&k| seen(k) && angle(k) >= 57.0)
+        .take(3)
+        .collect();
+    let long: Vec<usize> = (0..pts.len())
+        .filter(|&k| seen(k) && angle(k) >= 45.0 && !short.contains(&k))
+        .take(3)
+        .collect();
+    assert_eq!((short.len(), long.len()), (3, 3), "too few oblique markers");
+    let run = |told: bool| -> (usize, usize, usize) {
+        let mut lab =
+            Labeler::new(rig.clone(), &layout, pts.clone(), LabelParams::default()).unwrap();
+        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut rng = Rng::new(113);
+        let (mut short_labeled, mut long_labeled, mut long_seen) = (0, 0, 0);
+        for f in 0..20usize {
+            let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+            if f >= 2 {
+                for (dets, truth) in obs.iter_mut().map(|(d, t)| (d, &*t)) {
+                    for (d, truth) in dets.iter_mut().zip(truth) {
+                        let Some(k) = *truth else { continue };
+                        let length = if short.contains(&k) {
+                            1.0
+                        } else if long.contains(&k) {
+                            2.0
+                        } else {
+                            continue;
+                        };
+                        d.diameter_px *= length;
+                        d.roundness = 0.12;
+                        d.area_px = (0.95
+                            * std::f64::consts::FRAC_PI_4
+                            * d.diameter_px
+                            * d.diameter_px
+                            * d.roundness) as usize;
+                        d.streak = told;
+                    }
+                }
+            }
+            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+            let truth = [obs[0].1.clone(), obs[1].1.clone()];
+            let (_, wrong) = count(&out, &truth);
+            assert_eq!(wrong, 0, "frame {f}");
+            // A worn dot is taken for a marker not labeled in the last frame.
+            if f < 4 {
+                continue;
+            }
+            let in_both = |k: usize| truth[0].contains(&Some(k)) && truth[1].contains(&Some(k));
+            short_labeled += short.iter().filter(|&&k| out.markers[k].is_some()).count();
+            for &k in long.iter().filter(|&&k| in_both(k)) {
+                long_seen += 1;
+                long_labeled += usize::from(out.markers[k].is_some());
+            }
+        }
+        (short_labeled, long_labeled, long_seen)
+    };
+    let (short_labeled, long_labeled, long_seen) = run(true);
+    assert_eq!(long_seen, 3 * 16, "long streaks out of view");
+    assert_eq!(short_labeled, 0, "streaks a dot long labeled");
+    assert_eq!(long_labeled, long_seen, "long streaks on the dot labeled");
+    let (short_labeled, ..) = run(false);
+    assert!(
+        short_labeled > 0,
+        "untold, the short streaks are not taken either: the test shows nothing"
+    );
+}
+
+#[test]
 fn a_marker_back_where_it_was_is_labeled_when_its_neighbours_moved_away() {
     // A marker and its three nearest neighbours leave the images for 20 frames (a row of
     // chin dots below the frame's edge) while the lower face's other markers move 5 mm
@@ -1186,6 +1285,7 @@ fn a_piece_of_a_markers_last_blob_off_its_prediction_is_told() {
             quality: 0.4,
             diameter_px,
             axis_rad: f64::NAN,
+            streak: false,
         })
     };
     lab.blobs = [vec![blob(10.0), blob(22.0)], vec![blob(10.0), blob(22.0)]];
@@ -1569,6 +1669,7 @@ fn a_freckle_where_a_dot_was_wiped_off_is_dropped_after_a_few_frames() {
                     quality: 0.3,
                     diameter_px: 0.5 * smallest,
                     axis_rad: f64::NAN,
+                    streak: false,
                 });
                 obs[c].1.push(None);
             }
@@ -1646,6 +1747,7 @@ fn projected_discs(
         quality: 0.5,
         diameter_px: major,
         axis_rad: axis.y.atan2(axis.x),
+        streak: false,
     }
 }
 

@@ -1142,6 +1142,15 @@ impl Labeler {
                     .ok()
                     .filter(|b| (b.point_in_cam0 - pr.point).norm() <= reach * pr.gate_mm)
             };
+            // A streak thinner than any dot is a worn dot's blob or nothing.
+            if [(0, a), (1, b)]
+                .iter()
+                .any(|&(c, d)| self.blobs[c].get(d).is_some_and(|s| s.streak))
+            {
+                return gated([x0, x1])
+                    .filter(|_| self.worn_dot(pr, [a, b], [x0, x1]))
+                    .map(|bundle| (bundle, Fit::Worn));
+            }
             // A dot merged with a blob beside it is labeled at its lobe: at a first sighting
             // where the neighbours put it, and then as it is tracked there; a tracked dot
             // whose blob grew on one side, as soon as it did, or not at all.
