@@ -278,14 +278,15 @@ const PRESETS: &[(&str, Goal)] = &[
     ("wide-mixed", Goal::Full),
     (
         "cluttered",
-        // Measured 95.6 % labeled (94.4 % before dots merged with a mole were labeled at
-        // their lobe, 88.5 % before worn dots were taken and frame 0 was acquired), no
+        // Measured 96.9 % labeled (95.7 % before streaks were reported, 94.4 % before
+        // dots merged with a mole were labeled at their lobe, 88.5 % before worn dots
+        // were taken and frame 0 was acquired), no
         // wrong label (the last one, a smudged dot crossed by a hair, went with the fill
         // rule of first sightings); the sensor noise's realization alone moved this share
         // by 1.4 points (82.6 → 81.2 % when the noise generator changed), so the floor
         // leaves that much, and one wrong label.
         Goal::Floor {
-            labeled: 0.942,
+            labeled: 0.955,
             max_wrong: 1,
         },
     ),
