@@ -541,28 +541,7 @@ impl MarkerDetector {
             &mut fine,
             rejected,
         );
-        let inside = |c: &Detection, f: &Detection| {
-            (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
-        };
-        // A large dot is one round blob: it holds at most one of the small scale's blobs
-        // (its ring). A large blob around several small ones is a patch of skin with dots
-        // in it (an eyebrow, the shading beside the nose), not a dot.
-        // When it holds one, the two are the same dot only if they share the centre (a
-        // small dot merged with a shadow in the large window makes a large blob around it
-        // whose centre is off).
-        coarse.retain(|c| {
-            let mut held = fine.iter().filter(|f| inside(c, f));
-            match (held.next(), held.next()) {
-                (None, _) => true,
-                (Some(f), None) => {
-                    (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
-                }
-                (Some(_), Some(_)) => false,
-            }
-        });
-        fine.retain(|f| !coarse.iter().any(|c| inside(c, f)));
-        fine.extend(coarse);
-        fine
+        merge_scales(coarse, fine)
     }
 
     /// Connected components (8-connectivity) of the candidate mask over the ROI, each
@@ -914,6 +893,52 @@ fn end_of_run(line: &[u8], mut x: usize) -> usize {
 /// window's mean and the blob becomes a ring).
 pub fn small_scale_limit_px(r: usize) -> f64 {
     0.87 * (2 * r + 1) as f64
+}
+
+/// The blobs of both window scales ([`MarkerDetector::detect_two_scales`]): the large
+/// scale's `coarse` blobs (round and wider than the small window handles) and the small
+/// scale's `fine` ones, each dot once.
+fn merge_scales(mut coarse: Vec<Detection>, mut fine: Vec<Detection>) -> Vec<Detection> {
+    let inside = |c: &Detection, f: &Detection| {
+        (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
+    };
+    // A large dot is one round blob: it holds at most one of the small scale's blobs
+    // (its ring). A large blob around several small ones is a patch of skin with dots
+    // in it (an eyebrow, the shading beside the nose), not a dot.
+    // When it holds one, the two are the same dot only if they share the centre (a
+    // small dot merged with a shadow in the large window makes a large blob around it
+    // whose centre is off), and if the small one is not a whole dot much smaller than
+    // the large blob (a dot seen obliquely among hair strokes, which the large window
+    // merges into a round patch around it): a large dot is a ring in the small window.
+    coarse.retain(|c| {
+        let mut held = fine.iter().filter(|f| inside(c, f));
+        match (held.next(), held.next()) {
+            (None, _) => true,
+            (Some(f), None) => {
+                (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
+                    && !(c.diameter_px > COARSE_MAX_OVER_WHOLE * f.diameter_px
+                        && ellipse_fill(f) >= WHOLE_MIN_FILL)
+            }
+            (Some(_), Some(_)) => false,
+        }
+    });
+    fine.retain(|f| !coarse.iter().any(|c| inside(c, f)));
+    fine.extend(coarse);
+    fine
+}
+
+/// How much longer than a whole dot of the small window scale (filling at least
+/// [`WHOLE_MIN_FILL`] of its ellipse) a large blob around it may be and still be taken
+/// for it ([`MarkerDetector::detect_two_scales`]).
+const COARSE_MAX_OVER_WHOLE: f64 = 1.5;
+
+/// The least share of its ellipse a blob of the small window scale fills to be a whole
+/// dot, not a large dot's ring (a filled ellipse measures 0.85-1.05 with its rim).
+const WHOLE_MIN_FILL: f64 = 0.7;
+
+/// The share of the ellipse of its second moments that detection `d` fills.
+fn ellipse_fill(d: &Detection) -> f64 {
+    d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * d.diameter_px * d.roundness)
 }
 
 /// Smallest roundness of a blob of the large window scale: a large dot seen up to about 60°
@@ -1762,6 +1787,54 @@ mod tests {
 
     /// `base` with the ellipses `(cx, cy, a, b, angle)` darkened by `darkness` of the way
     /// to the ink of [`image_with_ellipses`] (1: full ink).
+    #[test]
+    fn the_two_scales_give_each_dot_once() {
+        let blob = |x: f64, diameter_px: f64, roundness: f64, fill: f64| Detection {
+            centre_px: Point2::new(x, 50.0),
+            area_px: (fill * std::f64::consts::FRAC_PI_4 * diameter_px * diameter_px * roundness)
+                .round() as usize,
+            roundness,
+            contrast_dn: 60.0,
+            quality: 0.4,
+            diameter_px,
+            axis_rad: 0.0,
+            streak: false,
+        };
+        let one = |coarse: Detection, fine: Detection| {
+            let merged = merge_scales(vec![coarse], vec![fine]);
+            assert_eq!(merged.len(), 1, "{merged:?}");
+            merged[0].diameter_px
+        };
+        // A large dot is a ring in the small window (filling a third of its ellipse): the
+        // large blob.
+        assert_eq!(
+            one(blob(100.5, 25.0, 0.95, 0.95), blob(100.0, 27.0, 0.9, 0.35)),
+            25.0
+        );
+        // A large dot the small window sees whole too: the large blob.
+        assert_eq!(
+            one(blob(100.5, 24.0, 0.9, 0.95), blob(100.0, 20.0, 0.9, 0.95)),
+            24.0
+        );
+        // A dot seen 60° from its normal (19 px long, half as wide, filled) in a round
+        // patch of hair strokes 37 px across about it: the dot.
+        assert_eq!(
+            one(blob(100.5, 37.0, 0.63, 0.4), blob(100.0, 19.0, 0.5, 0.95)),
+            19.0
+        );
+        // A small dot merged with a shadow in the large window, off its centre: the dot.
+        assert_eq!(
+            one(blob(106.0, 30.0, 0.8, 0.9), blob(100.0, 12.0, 0.9, 0.95)),
+            12.0
+        );
+        // A patch around two dots: the dots.
+        let merged = merge_scales(
+            vec![blob(100.0, 40.0, 0.8, 0.6)],
+            vec![blob(92.0, 12.0, 0.9, 0.95), blob(108.0, 12.0, 0.9, 0.95)],
+        );
+        assert!(merged.iter().all(|d| d.diameter_px == 12.0) && merged.len() == 2);
+    }
+
     #[test]
     fn finds_an_oblique_dot_under_hair() {
         // A dot seen about 64° from its normal (18 × 8 px) with a hair (1.3 px wide) from
