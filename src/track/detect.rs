@@ -938,7 +938,7 @@ const WHOLE_MIN_FILL: f64 = 0.7;
 
 /// The share of the ellipse of its second moments that detection `d` fills.
 fn ellipse_fill(d: &Detection) -> f64 {
-    d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * d.diameter_px * d.roundness)
+    d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * (d.diameter_px * d.roundness))
 }
 
 /// Smallest roundness of a blob of the large window scale: a large dot seen up to about 60°
@@ -1021,10 +1021,9 @@ fn split_and_measure(
             // times the core's in every direction, and its minor axis at least `√s` times
             // the core's.
             let core_fits = |d: &Detection| {
-                let minor = d.diameter_px * d.roundness;
-                let fill = d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * minor);
-                fill < HAIR_CHECK_BELOW_FILL
-                    && minor >= HAIR_FREE_MIN_SHARE.sqrt() * HAIR_FREE_MIN_WIDTH_PX
+                ellipse_fill(d) < HAIR_CHECK_BELOW_FILL
+                    && d.diameter_px * d.roundness
+                        >= HAIR_FREE_MIN_SHARE.sqrt() * HAIR_FREE_MIN_WIDTH_PX
             };
             // Hair strokes around a dot seen obliquely may also make a rounder blob, which
             // fills far less of its ellipse than any dot: its core need not be rounder.
@@ -1164,10 +1163,8 @@ fn whole_smear(
         return None;
     }
     let mut d = measure_blob(image, pixels, &relaxed).ok()?;
-    let minor = d.diameter_px * d.roundness;
-    let fill = d.area_px as f64 / (std::f64::consts::FRAC_PI_4 * d.diameter_px * minor);
     d.streak = d.roundness < params.elongated_min_roundness;
-    (fill >= SMEAR_MIN_FILL).then_some(d)
+    (ellipse_fill(&d) >= SMEAR_MIN_FILL).then_some(d)
 }
 
 /// The dot inside a component of candidate pixels that hair (or any other stroke at most
