@@ -366,6 +366,101 @@ mod tests {
         assert_eq!(shipped.dot_diameter_mm, 2.4);
     }
 
+    /// The `Default …` each field's documentation states, as `(field, value)`: the field
+    /// names of `pub struct name` in `source`, with the words after "Default" in the doc
+    /// comment above each (None when it states none).
+    fn documented_defaults(source: &str, name: &str) -> Vec<(String, Option<String>)> {
+        let start = source
+            .find(&format!("pub struct {name} {{"))
+            .unwrap_or_else(|| panic!("no struct {name}"));
+        let body = &source[start..];
+        let body = &body[..body.find("\n}").unwrap()];
+        let mut out = Vec::new();
+        let mut doc = String::new();
+        for line in body.lines().skip(1) {
+            let line = line.trim();
+            if let Some(text) = line.strip_prefix("///") {
+                doc.push(' ');
+                doc.push_str(text.trim());
+            } else if let Some(field) = line.strip_prefix("pub ") {
+                let field = field.split(':').next().unwrap().trim().to_string();
+                let stated = doc
+                    .find("Default ")
+                    .map(|i| doc[i + "Default ".len()..].trim().to_string());
+                out.push((field, stated));
+                doc.clear();
+            } else if !line.starts_with("#[") {
+                doc.clear();
+            }
+        }
+        out
+    }
+
+    /// Whether the words `stated` after "Default" begin with `value` (a TOML number, a
+    /// boolean, or a pair written "a to b").
+    fn states(stated: &str, value: &toml::Value) -> bool {
+        let number = |word: &str| -> Option<f64> {
+            word.trim_end_matches(['.', ',', ':', ';']).parse().ok()
+        };
+        let mut words = stated.split_whitespace();
+        let as_f64 = |v: &toml::Value| v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+        match value {
+            toml::Value::Boolean(b) => {
+                words.next().map(|w| w.trim_end_matches(['.', ',', ':'])) == Some(&b.to_string())
+            }
+            toml::Value::Array(pair) if pair.len() == 2 => {
+                let (a, to, b) = (words.next(), words.next(), words.next());
+                to == Some("to")
+                    && a.and_then(number) == as_f64(&pair[0])
+                    && b.and_then(number) == as_f64(&pair[1])
+            }
+            v => words
+                .next()
+                .and_then(number)
+                .is_some_and(|n| Some(n) == as_f64(v)),
+        }
+    }
+
+    #[test]
+    fn documented_defaults_are_the_defaults() {
+        // Each setting's documentation states its default; a default changed in code and
+        // not in the documentation (or the other way) is caught here, setting by setting.
+        let cases = [
+            (
+                include_str!("detect.rs"),
+                "DetectParams",
+                toml::Value::try_from(DetectParams::default()).unwrap(),
+            ),
+            (
+                include_str!("label/mod.rs"),
+                "LabelParams",
+                toml::Value::try_from(LabelParams::default()).unwrap(),
+            ),
+        ];
+        let mut checked = 0;
+        for (source, name, defaults) in cases {
+            let fields = documented_defaults(source, name);
+            assert!(fields.len() >= 10, "{name}: {fields:?}");
+            for (field, stated) in fields {
+                // Settings a profile does not write (set from elsewhere), and those whose
+                // default is another type's.
+                let Some(value) = defaults.get(&field) else {
+                    continue;
+                };
+                let stated = stated.unwrap_or_else(|| panic!("{name}::{field} states no default"));
+                if value.is_table() || stated.starts_with('[') {
+                    continue;
+                }
+                assert!(
+                    states(&stated, value),
+                    "{name}::{field}: documented \"Default {stated}\", is {value}"
+                );
+                checked += 1;
+            }
+        }
+        assert!(checked >= 40, "{checked}");
+    }
+
     #[test]
     fn dot_sizes_follow_the_rig() {
         // 2.4 mm dots, 100-300 mm, a 700 px lens: 4.2 to 21 px.
