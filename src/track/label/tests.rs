@@ -975,6 +975,83 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
 }
 
 #[test]
+fn a_worn_dots_centres_may_disagree_more_than_a_dots() {
+    // Smears for the whole take, as in the test above, whose centres in the two images
+    // disagree across the epipolar geometry: in each image the centre is moved off the
+    // epipolar plane through the dot (the two the opposite ways), by `k` times the epipolar
+    // gate. A worn dot is taken up to twice a dot's gate (k = 1.4), not beyond (k = 2.4,
+    // each centre still well within the worn tolerance of where its neighbours put it).
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(9);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let cam1_from_head = cam1_from_head(&rig, &pose);
+    let cam1_centre = rig.cam1_centre_in_cam0();
+    let worn = [4, 12, 26, 38, 55];
+    let run = |k: f64| -> (usize, usize) {
+        let mut lab =
+            Labeler::new(rig.clone(), &layout, pts.clone(), LabelParams::default()).unwrap();
+        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut rng = Rng::new(127);
+        let (mut labeled, mut seen) = (0, 0);
+        for f in 0..30usize {
+            let gate = lab.epipolar_gate().0;
+            let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+            for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
+                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+                for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
+                    let Some(m) = *truth else { continue };
+                    if !worn.contains(&m) {
+                        continue;
+                    }
+                    // The dot in the cam0 frame, and the normal of its epipolar plane.
+                    let p = pose * pts[m];
+                    let across = cam1_centre.coords.cross(&p.coords).normalize();
+                    let z = (cam_from_head * pts[m]).coords.norm();
+                    let shift_px = k * gate;
+                    let dot_px = cam.fx() * 2.4 / z;
+                    assert!(
+                        shift_px < 1.0 + 0.125 * dot_px - 0.3,
+                        "the shift reaches the worn tolerance: the test would show nothing ({shift_px} px, dot {dot_px} px, gate {gate})"
+                    );
+                    let sign = if c == 0 { 1.0 } else { -1.0 };
+                    let moved = p + across * (sign * shift_px * z / cam.fx());
+                    let at = if c == 0 {
+                        moved.coords
+                    } else {
+                        (rig.cam1_from_cam0 * moved).coords
+                    };
+                    d.centre_px = cam.project(&at).unwrap();
+                    d.diameter_px *= 2.0;
+                    d.roundness = 0.3;
+                    d.area_px = (0.95
+                        * std::f64::consts::FRAC_PI_4
+                        * d.diameter_px
+                        * d.diameter_px
+                        * d.roundness) as usize;
+                }
+            }
+            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+            let truth = [obs[0].1.clone(), obs[1].1.clone()];
+            assert_eq!(count(&out, &truth).1, 0, "frame {f}");
+            if f < 2 {
+                continue;
+            }
+            let in_both = |m: usize| truth[0].contains(&Some(m)) && truth[1].contains(&Some(m));
+            for &m in worn.iter().filter(|&&m| in_both(m)) {
+                seen += 1;
+                labeled += usize::from(out.markers[m].is_some());
+            }
+        }
+        (labeled, seen)
+    };
+    let (labeled, seen) = run(1.4);
+    assert!(seen >= 3 * 28, "only {seen} worn dots in view");
+    assert_eq!(labeled, seen, "worn dots 1.4 gates off the epipolar plane");
+    let (labeled, _) = run(2.4);
+    assert_eq!(labeled, 0, "worn dots 2.4 gates off the epipolar plane");
+}
+
+#[test]
 fn a_streak_is_labeled_only_as_a_worn_dot() {
     // The head turned so that the markers on one side are seen 45-73° from their normal.
     // From frame 2 on, some of those markers' blobs are streaks thinner than any dot
