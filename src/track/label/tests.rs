@@ -882,6 +882,12 @@ fn a_crease_where_a_marker_comes_back_is_not_taken_for_it() {
     );
 }
 
+/// The area of a blob that fills 0.95 of the ellipse of its diameter and roundness (as a
+/// smear does).
+fn filled_ellipse_area(d: &Detection) -> usize {
+    (0.95 * std::f64::consts::FRAC_PI_4 * d.diameter_px * d.diameter_px * d.roundness) as usize
+}
+
 #[test]
 fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
     // Some dots are smeared for the whole take: a blob twice a dot's length, roundness
@@ -934,11 +940,7 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
                         d.diameter_px = 2.0 * dot_px;
                         d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
                     }
-                    d.area_px = (0.95
-                        * std::f64::consts::FRAC_PI_4
-                        * d.diameter_px
-                        * d.diameter_px
-                        * d.roundness) as usize;
+                    d.area_px = filled_ellipse_area(d);
                 }
             }
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
@@ -1023,11 +1025,7 @@ fn a_worn_dots_centres_may_disagree_more_than_a_dots() {
                     d.centre_px = cam.project(&at).unwrap();
                     d.diameter_px *= 2.0;
                     d.roundness = 0.3;
-                    d.area_px = (0.95
-                        * std::f64::consts::FRAC_PI_4
-                        * d.diameter_px
-                        * d.diameter_px
-                        * d.roundness) as usize;
+                    d.area_px = filled_ellipse_area(d);
                 }
             }
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
@@ -1107,11 +1105,7 @@ fn a_streak_is_labeled_only_as_a_worn_dot() {
                         };
                         d.diameter_px *= length;
                         d.roundness = 0.12;
-                        d.area_px = (0.95
-                            * std::f64::consts::FRAC_PI_4
-                            * d.diameter_px
-                            * d.diameter_px
-                            * d.roundness) as usize;
+                        d.area_px = filled_ellipse_area(d);
                         d.streak = told;
                     }
                 }
