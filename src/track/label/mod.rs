@@ -1018,12 +1018,13 @@ impl Labeler {
         }
         stats.paired = stats.paired.max(pass.paired);
         stats.rejected += pass.rejected;
-        // The epipolar gate follows the detector's centroids: not a dot's lobe, estimated
-        // from a merged blob's shape.
+        // The epipolar gate follows the detector's centroids of whole dots: not a dot's
+        // lobe, estimated from a merged blob's shape, nor a worn dot's smear (whose pair
+        // has a gate of its own, wider).
         self.gate.update(
             pass.labels
                 .iter()
-                .filter(|l| l.confident && l.at.is_none())
+                .filter(|l| l.confident && l.at.is_none() && !l.worn)
                 .map(|l| l.bundle.reprojection_px),
         );
         let mut seen = vec![false; m];
