@@ -1184,7 +1184,9 @@ impl Labeler {
             if grew || (!pr.first_sighting && self.a_piece_off_its_blob(i, pr, [a, b], [x0, x1])) {
                 return None;
             }
-            if let Some(bundle) = gated([x0, x1]) {
+            // One triangulation for both gates: a dot's, and a worn dot's wider one.
+            let bundle = gated_with([x0, x1], &tri_worn)?;
+            if bundle.reprojection_px <= tri.max_reprojection_px {
                 let dot = self.dot_sized(
                     &bundle.point_in_cam0,
                     [a, b],
@@ -1199,15 +1201,9 @@ impl Labeler {
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
-                if self.worn_dot(pr, [a, b], [x0, x1]) {
-                    return Some((bundle, Fit::Worn));
-                }
-            } else if let Some(bundle) = gated_with([x0, x1], &tri_worn)
-                && self.worn_dot(pr, [a, b], [x0, x1])
-            {
-                return Some((bundle, Fit::Worn));
             }
-            None
+            self.worn_dot(pr, [a, b], [x0, x1])
+                .then_some((bundle, Fit::Worn))
         };
         let check = |i: usize, a: usize, b: usize| check_within(i, a, b, 1.0);
         // Whether detections (a, b) are never marker i's label, but still a pair that makes
