@@ -70,7 +70,7 @@ const LOBE_MIN_OFFSET_RATIO: f64 = 0.1;
 /// merged are 1.0-1.09 of one (by numerical integration, as for [`TWO_DISCS_SPREAD`]);
 /// a dot smudged along the skin is narrower (its ink spread over a longer, thinner
 /// ellipse), and read as two discs its "lobe" is wherever the neighbours' prediction
-/// leans (cluttered seed 92's M101 was moved 5 px off its dot for the last 40 frames).
+/// leans (cluttered seed 92's M101 was moved 5 px off its dot for the last 39 frames).
 /// On eight cluttered sessions the labels read as lobes measured 0.44-8.5 when the dot
 /// was not smudged (0.8 % of 6,271 below 0.6: lip dots partly hidden) and 0.27-0.78 when
 /// it was (90 % of 6,633 below 0.6).
@@ -761,8 +761,8 @@ impl Labeler {
     /// `λ₁` (not a dot merely larger than expected), the blob is about as wide across
     /// `u` as the dot ([`LOBE_MIN_ACROSS_RATIO`]: not a smear), and `q` is within a gate
     /// of one lobe and at least halfway to it from the centre: that lobe is the dot, the
-    /// other the far one. (Two thin dots side by side at an oblique view merge across their minor axes
-    /// into a round blob: the expected shape tells, not a length.)
+    /// other the far one. (Two thin dots side by side at an oblique view merge across
+    /// their minor axes into a round blob: the expected shape tells, not a length.)
     pub(super) fn far_lobe(
         &self,
         point: &Point3<f64>,
