@@ -96,7 +96,8 @@ impl Labeler {
         }
         // Second pass under the refined pose.
         let preds = self.predictions(&pose, 1, 0.0);
-        let pass = self.label_pass(&preds, pixels);
+        let mut pass = self.label_pass(&preds, pixels);
+        pass.rejected += self.drop_sized_unlike_neighbours(&mut pass.labels);
         if pass.labels.len() < p.acquire_min_markers {
             return None;
         }

@@ -189,6 +189,77 @@ impl Labeler {
         })
     }
 
+    /// Each camera's blob diameter ([`crate::track::Detection::diameter_px`]) of detections
+    /// `det` over the largest major axis a dot at `point` (cam0 frame) can have through the
+    /// lens (its diameter at the largest magnification there, as in [`Labeler::dot_sized`]);
+    /// None where a size is unknown or the point does not project.
+    pub(super) fn size_over_expected(
+        &self,
+        point: &Point3<f64>,
+        det: [usize; 2],
+    ) -> Option<[f64; 2]> {
+        let in_cam1 = self.rig.cam1_from_cam0 * point;
+        let cams = [
+            (&self.rig.cam0, point.coords),
+            (&self.rig.cam1, in_cam1.coords),
+        ];
+        let mut out = [0.0; 2];
+        for (c, (cam, p)) in cams.iter().enumerate() {
+            let measured = self.blobs[c].get(det[c])?.diameter_px;
+            let (_, j) = cam.project_with_jacobian(p)?;
+            let largest = singular_values(&j).0 * self.params.dot_diameter_mm;
+            let ratio = measured / largest;
+            if !(ratio.is_finite() && ratio > 0.0) {
+                return None;
+            }
+            out[c] = ratio;
+        }
+        Some(out)
+    }
+
+    /// Whether detections `det` at `point` are sized like marker `i`'s neighbours' dots, as
+    /// a marker never labeled since the acquisition must be
+    /// ([`super::LabelParams::never_seen_min_relative_size`]), its neighbours' taken at
+    /// their labels in the last frame ([`sized_like`]).
+    pub(super) fn sized_like_neighbours(
+        &self,
+        i: usize,
+        point: &Point3<f64>,
+        det: [usize; 2],
+    ) -> bool {
+        let theirs: Vec<[f64; 2]> = self.neighbours[i]
+            .iter()
+            .map(|&(j, _)| &self.tracks[j])
+            .filter(|t| t.frames_since_seen == Some(0))
+            .filter_map(|t| t.size_over_expected)
+            .collect();
+        self.size_over_expected(point, det)
+            .is_none_or(|own| sized_like(own, &theirs, self.params.never_seen_min_relative_size))
+    }
+
+    /// Drops from an acquisition's `labels` those sized unlike the dots of their
+    /// neighbours labeled with them ([`sized_like`]): at the acquisition every marker is
+    /// seen for the first time, and a mole where a wiped-off dot should be is as likely
+    /// taken there as later. Returns how many were dropped.
+    pub(super) fn drop_sized_unlike_neighbours(&self, labels: &mut Vec<Label>) -> usize {
+        let mut sizes: Vec<Option<[f64; 2]>> = vec![None; self.tracks.len()];
+        for l in labels.iter().filter(|l| !l.worn && l.at.is_none()) {
+            sizes[l.marker] = self.size_over_expected(&l.bundle.point_in_cam0, l.det);
+        }
+        let before = labels.len();
+        labels.retain(|l| {
+            let Some(own) = sizes[l.marker] else {
+                return true;
+            };
+            let theirs: Vec<[f64; 2]> = self.neighbours[l.marker]
+                .iter()
+                .filter_map(|&(j, _)| sizes[j])
+                .collect();
+            sized_like(own, &theirs, self.params.never_seen_min_relative_size)
+        });
+        before - labels.len()
+    }
+
     /// Whether detections `det` (cam0, cam1) are as round as a dot at `point` with the
     /// skin's normal `normal` (both cam0 frame) can look from each camera: at least
     /// [`super::LabelParams::min_roundness_ratio`] of `cos(θ + slack)`, θ the angle between
@@ -1216,7 +1287,9 @@ impl Labeler {
                         p.dot_size_ratio
                     },
                 ) && self.round_enough(&bundle.point_in_cam0, pr.normal.as_ref(), [a, b])
-                    && (!pr.first_sighting || self.filled_like_a_dot([a, b]));
+                    && (!pr.first_sighting || self.filled_like_a_dot([a, b]))
+                    && (self.tracks[i].frames_since_seen.is_some()
+                        || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]));
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
@@ -1393,6 +1466,23 @@ impl Labeler {
             rejected,
         }
     }
+}
+
+/// Whether a blob of [`Labeler::size_over_expected`] `own` is at least `share` of the
+/// median of its neighbours' dots' (`theirs`) in one camera at least (see
+/// [`super::LabelParams::never_seen_min_relative_size`]); true with fewer than two
+/// neighbours or a share of 0.
+fn sized_like(own: [f64; 2], theirs: &[[f64; 2]], share: f64) -> bool {
+    if share <= 0.0 || theirs.len() < 2 {
+        return true;
+    }
+    (0..2).any(|c| {
+        let mut sizes: Vec<f64> = theirs.iter().map(|s| s[c]).collect();
+        sizes.sort_by(f64::total_cmp);
+        let n = sizes.len();
+        let median = 0.5 * (sizes[(n - 1) / 2] + sizes[n / 2]);
+        own[c] >= share * median
+    })
 }
 
 /// The singular values `σ₁ ≥ σ₂` of a 2×3 matrix (square roots of the eigenvalues of
