@@ -284,9 +284,8 @@ impl Labeler {
         let change = self.params.returning_max_size_change;
         let t = &self.tracks[i];
         if change <= 0.0
-            || !t
-                .frames_since_seen
-                .is_some_and(|n| n >= SIZE_MEMORY_MIN_GAP_FRAMES)
+            || t.frames_since_seen
+                .is_none_or(|n| n < SIZE_MEMORY_MIN_GAP_FRAMES)
         {
             return true;
         }
