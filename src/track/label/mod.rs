@@ -253,8 +253,8 @@ pub struct LabelParams {
     /// acquisition's labels 0.81 or more, a mole taken for a wiped marker 0.67 in both.
     pub never_seen_min_relative_size: f64,
     /// A marker coming back after a gap of 10 frames or more is not taken on a blob larger,
-    /// or smaller, than its dot at its last label by more than this share in both cameras
-    /// alike (sizes relative to the largest major axis a dot can have where each is, as
+    /// or smaller, than its dot at its last whole label by more than this share in both
+    /// cameras alike (sizes relative to the largest major axis a dot can have where each is, as
     /// for [`LabelParams::never_seen_min_relative_size`]); 0: no check. Where a marker's
     /// neighbours are far or move unlike it (a lip corner, the chin under an opening jaw),
     /// the place they predict for it stays behind the skin while it is gone, and a mole
@@ -573,9 +573,10 @@ struct Track {
     /// Labeled frames in a row whose blobs were smaller than a first sighting may be
     /// ([`Labeler::smaller_than_a_whole_dot`]).
     small_blob_frames: usize,
-    /// At the marker's last label: each camera's blob diameter over the largest major axis
-    /// a dot can have there ([`Labeler::size_over_expected`]); None when that label was
-    /// not a whole dot's blob (a worn dot, a lobe of a merged blob) or sizes are unknown.
+    /// At the marker's last label on a whole dot's blob ([`Labeler::whole_dot_sizes`]: a
+    /// dot sinking behind the lip is not remembered at its last sliver's size): each
+    /// camera's blob diameter over the largest major axis a dot can have there
+    /// ([`Labeler::size_over_expected`]); None before such a label since the acquisition.
     size_over_expected: Option<[f64; 2]>,
 }
 
@@ -1069,13 +1070,10 @@ impl Labeler {
         );
         let mut seen = vec![false; m];
         let mut small = vec![false; m];
-        let mut size = vec![None; m];
         for l in &pass.labels {
             small[l.marker] = self.smaller_than_a_whole_dot(&l.bundle.point_in_cam0, l.det);
-            size[l.marker] = (!l.worn && l.at.is_none())
-                .then(|| self.size_over_expected(&l.bundle.point_in_cam0, l.det))
-                .flatten();
         }
+        let size = self.whole_dot_sizes(&pass.labels, &small);
         let inverse = pose.inverse();
         for l in &pass.labels {
             let track = &mut self.tracks[l.marker];
@@ -1093,7 +1091,9 @@ impl Labeler {
                     .filter_map(|c| pixels[c][l.det[c]].map(|x| (x - at[c]).norm()))
                     .fold(0.0, f64::max)
             });
-            track.size_over_expected = size[l.marker];
+            if size[l.marker].is_some() {
+                track.size_over_expected = size[l.marker];
+            }
             track.small_blob_frames = if small[l.marker] {
                 track.small_blob_frames + 1
             } else {

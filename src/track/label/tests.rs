@@ -2202,3 +2202,53 @@ fn a_mole_where_a_marker_gone_for_long_should_be_is_not_taken_for_it() {
         "without the rule the moles are not taken: the test shows nothing"
     );
 }
+
+#[test]
+fn a_dot_back_whole_after_sinking_behind_the_lip_is_labeled() {
+    // Markers tracked on whole dots for ten frames, then on blobs 0.6 of a dot in both
+    // cameras for three (dots sinking behind the lip: still labeled, smaller than a first
+    // sighting may be), hidden for fifteen, and back whole. The size a marker coming back
+    // must match (`LabelParams::returning_max_size_change`) is its last whole dot's, not
+    // its last sliver's: the dots are labeled again within two frames.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(17);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let sinking = [8, 21, 35, 50, 63, 79];
+    let mut lab = labeler_with_normals(&layout, &pts, true);
+    let mut rng = Rng::new(117);
+    let mut back = 0;
+    for f in 0..32usize {
+        let gone = if (10..28).contains(&f) {
+            sinking.to_vec()
+        } else {
+            Vec::new()
+        };
+        let mut obs = observe(&rig, &pose, &pts, &gone, 0.15, 0, &mut rng);
+        if (10..13).contains(&f) {
+            for &k in &sinking {
+                add_blob(&rig, &pose, &mut obs, &pts[k], |dot_px| {
+                    (0.6 * dot_px, 0.9, 1.0)
+                });
+            }
+        }
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        if f == 12 {
+            let held = sinking
+                .iter()
+                .filter(|&&k| out.markers[k].is_some())
+                .count();
+            assert_eq!(held, sinking.len(), "the slivers were not labeled");
+        }
+        if f == 31 {
+            back = sinking
+                .iter()
+                .filter(|&&k| out.markers[k].is_some())
+                .count();
+        }
+    }
+    assert_eq!(
+        back,
+        sinking.len(),
+        "the dots back whole were not all labeled"
+    );
+}

@@ -85,6 +85,12 @@ const LOBE_MIN_ACROSS_RATIO: f64 = 0.6;
 /// within 10 % of it in one camera at least.
 const SIZE_MEMORY_MIN_GAP_FRAMES: usize = 10;
 
+/// A label's blob is remembered as its dot's size ([`Labeler::whole_dot_sizes`]) only
+/// when at least this share of its neighbours' dots' in both cameras: as a never-seen
+/// marker's blob must be in one ([`super::LabelParams::never_seen_min_relative_size`]'s
+/// default; the acquisition's right labels measured 0.81 or more in the larger camera).
+const REMEMBERED_MIN_RELATIVE_SIZE: f64 = 0.75;
+
 /// `√a(s)` at `s = 0, 0.05, …, 1`: the second moment `a(s)` that two discs of diameter 1
 /// whose centres are `s` apart add along the line through them to one disc's (`1/16`),
 /// their overlap counted once (by numerical integration; the `union_of_two_discs` test
@@ -242,8 +248,14 @@ impl Labeler {
             .filter(|t| t.frames_since_seen == Some(0))
             .filter_map(|t| t.size_over_expected)
             .collect();
-        self.size_over_expected(point, det)
-            .is_none_or(|own| sized_like(own, &theirs, self.params.never_seen_min_relative_size))
+        self.size_over_expected(point, det).is_none_or(|own| {
+            sized_like(
+                own,
+                &theirs,
+                self.params.never_seen_min_relative_size,
+                false,
+            )
+        })
     }
 
     /// Drops from an acquisition's `labels` those sized unlike the dots of their
@@ -264,17 +276,55 @@ impl Labeler {
                 .iter()
                 .filter_map(|&(j, _)| sizes[j])
                 .collect();
-            sized_like(own, &theirs, self.params.never_seen_min_relative_size)
+            sized_like(
+                own,
+                &theirs,
+                self.params.never_seen_min_relative_size,
+                false,
+            )
         });
         before - labels.len()
     }
 
+    /// The sizes ([`Labeler::size_over_expected`]) of this frame's `labels` worth
+    /// remembering as their dots' (per marker, None for the others): labels on a whole
+    /// dot's blob (not a worn dot, not a lobe, not smaller than a first sighting may be)
+    /// at least [`REMEMBERED_MIN_RELATIVE_SIZE`] of their neighbours' in both cameras
+    /// (with fewer than two neighbours labeled, any). A dot sinking behind the lip is
+    /// labeled while its sliver is half a dot or more; remembered at that size, the whole
+    /// dot coming back would be refused as a blob too large
+    /// ([`Labeler::sized_like_its_dot`]).
+    pub(super) fn whole_dot_sizes(
+        &self,
+        labels: &[Label],
+        small: &[bool],
+    ) -> Vec<Option<[f64; 2]>> {
+        let mut sizes: Vec<Option<[f64; 2]>> = vec![None; self.tracks.len()];
+        for l in labels
+            .iter()
+            .filter(|l| !l.worn && l.at.is_none() && !small[l.marker])
+        {
+            sizes[l.marker] = self.size_over_expected(&l.bundle.point_in_cam0, l.det);
+        }
+        (0..sizes.len())
+            .map(|i| {
+                sizes[i].filter(|&own| {
+                    let theirs: Vec<[f64; 2]> = self.neighbours[i]
+                        .iter()
+                        .filter_map(|&(j, _)| sizes[j])
+                        .collect();
+                    sized_like(own, &theirs, REMEMBERED_MIN_RELATIVE_SIZE, true)
+                })
+            })
+            .collect()
+    }
+
     /// Whether detections `det` at `point` may be marker `i`'s dot coming back after a gap
     /// of [`SIZE_MEMORY_MIN_GAP_FRAMES`] or more: not larger, nor smaller, than its dot
-    /// at its last label ([`Labeler::size_over_expected`], which allows for the lens) by
-    /// more than [`super::LabelParams::returning_max_size_change`] in both cameras alike.
-    /// True for a marker not back from such a gap, or whose last label was not a whole
-    /// dot's blob.
+    /// at its last label on a whole dot ([`Labeler::size_over_expected`], which allows for
+    /// the lens) by more than [`super::LabelParams::returning_max_size_change`] in both
+    /// cameras alike. True for a marker not back from such a gap, or with no such label
+    /// since the acquisition.
     pub(super) fn sized_like_its_dot(
         &self,
         i: usize,
@@ -1511,19 +1561,24 @@ impl Labeler {
 
 /// Whether a blob of [`Labeler::size_over_expected`] `own` is at least `share` of the
 /// median of its neighbours' dots' (`theirs`) in one camera at least (see
-/// [`super::LabelParams::never_seen_min_relative_size`]); true with fewer than two
-/// neighbours or a share of 0.
-fn sized_like(own: [f64; 2], theirs: &[[f64; 2]], share: f64) -> bool {
+/// [`super::LabelParams::never_seen_min_relative_size`]), or with `in_both` in both;
+/// true with fewer than two neighbours or a share of 0.
+fn sized_like(own: [f64; 2], theirs: &[[f64; 2]], share: f64, in_both: bool) -> bool {
     if share <= 0.0 || theirs.len() < 2 {
         return true;
     }
-    (0..2).any(|c| {
+    let like = |c: usize| {
         let mut sizes: Vec<f64> = theirs.iter().map(|s| s[c]).collect();
         sizes.sort_by(f64::total_cmp);
         let n = sizes.len();
         let median = 0.5 * (sizes[(n - 1) / 2] + sizes[n / 2]);
         own[c] >= share * median
-    })
+    };
+    if in_both {
+        like(0) && like(1)
+    } else {
+        like(0) || like(1)
+    }
 }
 
 /// The singular values `σ₁ ≥ σ₂` of a 2×3 matrix (square roots of the eigenvalues of
