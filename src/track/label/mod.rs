@@ -64,7 +64,12 @@
 //! sighting, unless the other lobe is within a rival's reach; a marker tracked onto such
 //! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
 //! A marker never labeled since the acquisition is labeled only once found in
-//! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]). A marker whose
+//! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]), and only on a
+//! blob about the size of its neighbours' dots in one camera at least
+//! ([`LabelParams::never_seen_min_relative_size`]); a marker back after a long gap, only
+//! on a blob about its own dot's last whole size in one camera at least
+//! ([`LabelParams::returning_max_size_change`]): a mole is a whole disc of another size,
+//! off alike in both cameras. A marker whose
 //! blobs stay smaller
 //! than a whole dot of its paint can look, frame after frame, is not on its dot (a
 //! freckle where a dot was wiped off): after [`tracking::SMALL_BLOB_FRAMES`] such labels
@@ -236,34 +241,34 @@ pub struct LabelParams {
     /// wrong labels this rule removed). Default 0.6.
     pub first_sighting_min_fill: f64,
     /// A marker not labeled since the acquisition (its dot wiped off before the take, or
-    /// hidden since) is taken only on blobs at least this share of the size its
-    /// neighbours' dots measure, in one camera at least; 0: no check. Size here is a blob's
-    /// diameter over the largest major axis a dot can have where it is (see
+    /// hidden since) is taken only on blobs at least this share of the size its neighbours'
+    /// dots measure, in one camera at least; 0: no check. Size here is a blob's diameter
+    /// over the largest major axis a dot can have where it is (see
     /// [`LabelParams::dot_size_ratio`]), and the neighbours' the median of theirs at their
     /// labels in the last frame, or at the acquisition (where every marker is seen for the
     /// first time) in the same frame: at least two labeled as whole dots; with fewer, no
-    /// check.
-    /// A mole or freckle where such a marker's dot should be is a whole disc of its own
-    /// size, smaller than a dot alike in both cameras; a dot partly hidden by a lip or
+    /// check. A mole or freckle where such a marker's dot should be is a whole disc of its
+    /// own size, smaller than a dot alike in both cameras; a dot partly hidden by a lip or
     /// seen at the silhouette is small in one camera more than the other. So the
     /// neighbours' dots, measured by the same lens, blur and light, set the size, where
     /// [`LabelParams::first_sighting_size_ratio`] must allow for every rig's. Default 0.75:
-    /// on nine cluttered and wiped-moles set-ups, never-seen markers' right first
-    /// sightings measured 0.85 or more of their neighbours' dots in one camera, the
-    /// acquisition's labels 0.81 or more, a mole taken for a wiped marker 0.67 in both.
+    /// on nine cluttered and wiped-moles set-ups, never-seen markers' right first sightings
+    /// measured 0.85 or more of their neighbours' dots in one camera, the acquisition's
+    /// labels 0.81 or more, a mole taken for a wiped marker 0.67 in both.
     pub never_seen_min_relative_size: f64,
     /// A marker coming back after a gap of 10 frames or more is not taken on a blob larger,
     /// or smaller, than its dot at its last whole label by more than this share in both
-    /// cameras alike (sizes relative to the largest major axis a dot can have where each is, as
-    /// for [`LabelParams::never_seen_min_relative_size`]); 0: no check. Where a marker's
-    /// neighbours are far or move unlike it (a lip corner, the chin under an opening jaw),
-    /// the place they predict for it stays behind the skin while it is gone, and a mole
-    /// that stood beside its dot, moving with the skin, slides into the gate: a whole disc
-    /// of its own size, as much off the dot's in both cameras. A dot back whole is its own
-    /// size again; one still partly hidden is smaller in one camera more than the other.
-    /// Default 0.15: on nine cluttered and wiped-moles set-ups, the right returns after 10
-    /// frames or more were within 10 % of the dot's last size in one camera at least, the
-    /// three moles taken for wiped markers 0.75, 1.22 and 1.40 of it in both.
+    /// cameras alike (sizes relative to the largest major axis a dot can have where each
+    /// is, as for [`LabelParams::never_seen_min_relative_size`]); 0: no check. Where a
+    /// marker's neighbours are far or move unlike it (a lip corner, the chin under an
+    /// opening jaw), the place they predict for it stays behind the skin while it is gone,
+    /// and a mole that stood beside its dot, moving with the skin, slides into the gate: a
+    /// whole disc of its own size, as much off the dot's in both cameras. A dot back whole
+    /// is its own size again; one still partly hidden is smaller in one camera more than
+    /// the other. Default 0.15: on nine cluttered and wiped-moles set-ups, the right
+    /// returns after 10 frames or more were within 10 % of the dot's last size in one
+    /// camera at least, the three moles taken for wiped markers 0.75, 1.22 and 1.40 of it
+    /// in both.
     pub returning_max_size_change: f64,
     /// Whether a marker may be labeled on a worn dot: a blob that fails the dot's shape
     /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],
