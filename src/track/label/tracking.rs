@@ -263,25 +263,18 @@ impl Labeler {
     /// seen for the first time, and a mole where a wiped-off dot should be is as likely
     /// taken there as later. Returns how many were dropped.
     pub(super) fn drop_sized_unlike_neighbours(&self, labels: &mut Vec<Label>) -> usize {
-        let mut sizes: Vec<Option<[f64; 2]>> = vec![None; self.tracks.len()];
-        for l in labels.iter().filter(|l| !l.worn && l.at.is_none()) {
-            sizes[l.marker] = self.size_over_expected(&l.bundle.point_in_cam0, l.det);
-        }
+        let sizes = self.label_sizes(labels, |l| !l.worn && l.at.is_none());
+        let share = self.params.never_seen_min_relative_size;
         let before = labels.len();
         labels.retain(|l| {
-            let Some(own) = sizes[l.marker] else {
-                return true;
-            };
-            let theirs: Vec<[f64; 2]> = self.neighbours[l.marker]
-                .iter()
-                .filter_map(|&(j, _)| sizes[j])
-                .collect();
-            sized_like(
-                own,
-                &theirs,
-                self.params.never_seen_min_relative_size,
-                false,
-            )
+            sizes[l.marker].is_none_or(|own| {
+                sized_like(
+                    own,
+                    &neighbours_sizes(&self.neighbours[l.marker], &sizes),
+                    share,
+                    false,
+                )
+            })
         });
         before - labels.len()
     }
@@ -299,24 +292,29 @@ impl Labeler {
         labels: &[Label],
         small: &[bool],
     ) -> Vec<Option<[f64; 2]>> {
-        let mut sizes: Vec<Option<[f64; 2]>> = vec![None; self.tracks.len()];
-        for l in labels
-            .iter()
-            .filter(|l| !l.worn && l.at.is_none() && !small[l.marker])
-        {
-            sizes[l.marker] = self.size_over_expected(&l.bundle.point_in_cam0, l.det);
-        }
+        let sizes = self.label_sizes(labels, |l| !l.worn && l.at.is_none() && !small[l.marker]);
         (0..sizes.len())
             .map(|i| {
                 sizes[i].filter(|&own| {
-                    let theirs: Vec<[f64; 2]> = self.neighbours[i]
-                        .iter()
-                        .filter_map(|&(j, _)| sizes[j])
-                        .collect();
+                    let theirs = neighbours_sizes(&self.neighbours[i], &sizes);
                     sized_like(own, &theirs, REMEMBERED_MIN_RELATIVE_SIZE, true)
                 })
             })
             .collect()
+    }
+
+    /// [`Labeler::size_over_expected`] of each of `labels` that `measured` picks, per
+    /// marker (None for the others).
+    fn label_sizes(
+        &self,
+        labels: &[Label],
+        measured: impl Fn(&Label) -> bool,
+    ) -> Vec<Option<[f64; 2]>> {
+        let mut sizes = vec![None; self.tracks.len()];
+        for l in labels.iter().filter(|l| measured(l)) {
+            sizes[l.marker] = self.size_over_expected(&l.bundle.point_in_cam0, l.det);
+        }
+        sizes
     }
 
     /// Whether detections `det` at `point` may be marker `i`'s dot coming back after a gap
@@ -1557,6 +1555,11 @@ impl Labeler {
             rejected,
         }
     }
+}
+
+/// The known `sizes` (per marker) of `neighbours` (a marker's, with their distances).
+fn neighbours_sizes(neighbours: &[(usize, f64)], sizes: &[Option<[f64; 2]>]) -> Vec<[f64; 2]> {
+    neighbours.iter().filter_map(|&(j, _)| sizes[j]).collect()
 }
 
 /// Whether a blob of [`Labeler::size_over_expected`] `own` is at least `share` of the
