@@ -29,7 +29,7 @@
 
 use nalgebra::Point2;
 
-use super::search_windows::{Rect, SearchWindows, in_any};
+use super::search_windows::{Rect, RectGrid, SearchWindows, in_any};
 use crate::capture::GrayImage;
 use crate::numeric::{find_root, join_sets};
 use crate::param_error::{self, ParamError};
@@ -646,19 +646,14 @@ impl MarkerDetector {
         let floor = min_px.max(params.min_area_px).max(1);
         if let Some(centres) = centres {
             let (ox, oy, rim) = (x0 as i64, y0 as i64, RIM_PX as i64);
+            let grid = RectGrid::new(centres);
             for (n, b) in sizes.iter_mut().zip(boxes.iter()) {
                 if *n < floor {
                     continue;
                 }
                 let (bx0, by0) = (i64::from(b.0) + ox - rim, i64::from(b.1) + oy - rim);
                 let (bx1, by1) = (i64::from(b.2) + ox + rim, i64::from(b.3) + oy + rim);
-                let near = centres.iter().any(|&(a, b, c, d)| {
-                    bx0 < i64::from(c)
-                        && bx1 >= i64::from(a)
-                        && by0 < i64::from(d)
-                        && by1 >= i64::from(b)
-                });
-                if !near {
+                if !grid.meets_any((bx0, by0, bx1, by1)) {
                     *n = 0;
                 }
             }
@@ -829,11 +824,23 @@ impl MarkerDetector {
                         }
                     }
                     if hit != 0 {
-                        // Candidates are sparse: found a word at a time.
+                        // Candidates are sparse: found a word at a time, and their
+                        // contrast `⌊d / A⌋` taken by an exact reciprocal of the fixed
+                        // area (see `Reciprocal`).
                         let line = &mut mask_row[i0 - x0..i1 - x0];
+                        let inverse = Reciprocal::new(area);
                         let mut k = 0;
                         while let Some(i) = next_candidate(line, k) {
-                            line[i] = level(i0 + i, img_row[i0 + i - x0]);
+                            let v = area * u32::from(vals[i]);
+                            let d = if params.bright {
+                                v.wrapping_sub(hi[i] - lo[i])
+                            } else {
+                                (hi[i] - lo[i]).wrapping_sub(v)
+                            };
+                            line[i] = match inverse {
+                                Some(inverse) => inverse.quotient(d).clamp(1, 255) as u8,
+                                None => level(i0 + i, vals[i]),
+                            };
                             k = i + 1;
                         }
                     }
@@ -842,6 +849,28 @@ impl MarkerDetector {
             }
             self.row_has_candidate[y - y0] = any != 0;
         }
+    }
+}
+
+/// Division by a fixed divisor `a < 2¹⁵` of dividends `d < 2²⁵` (a box's contrast sum,
+/// at most 255 levels over `a` pixels), as a multiplication: `⌊d·m / 2⁴⁰⌋` with
+/// `m = ⌊2⁴⁰/a⌋ + 1` is `⌊d/a⌋` exactly, since `d·m/2⁴⁰` exceeds `d/a` by less than
+/// `d/2⁴⁰ < 2⁻¹⁵`, and `d/a` lies at least `1/a > 2⁻¹⁵` below the next integer.
+#[derive(Debug, Clone, Copy)]
+struct Reciprocal(u64);
+
+impl Reciprocal {
+    const SHIFT: u32 = 40;
+
+    /// The reciprocal of `a`, None when `a` is 0 or not below 2¹⁵.
+    fn new(a: u32) -> Option<Self> {
+        (a > 0 && a < 1 << 15).then(|| Self((1u64 << Self::SHIFT) / u64::from(a) + 1))
+    }
+
+    /// `⌊d/a⌋` for `d < 2²⁵`.
+    fn quotient(self, d: u32) -> u32 {
+        debug_assert!(d < 1 << 25);
+        ((u64::from(d) * self.0) >> Self::SHIFT) as u32
     }
 }
 
@@ -1324,36 +1353,33 @@ fn for_each_part(pixels: &[(usize, usize, u8)], mut f: impl FnMut(&[(usize, usiz
     }) else {
         return;
     };
-    let (gw, gh) = (bx1 - bx0 + 1, by1 - by0 + 1);
-    let mut grid = vec![0u8; gw * gh];
+    // The box with a border of empty pixels, so that every pixel of the set has all its
+    // eight neighbours in the grid: pixel (x, y) at `(x − bx0 + 1, y − by0 + 1)`.
+    let gw = bx1 - bx0 + 3;
+    let mut grid = vec![0u8; gw * (by1 - by0 + 3)];
+    let at = |x: usize, y: usize| (y - by0 + 1) * gw + (x - bx0 + 1);
     for &(x, y, lv) in pixels {
-        grid[(y - by0) * gw + (x - bx0)] = lv.max(1);
+        grid[at(x, y)] = lv.max(1);
     }
     let mut stack = Vec::new();
     let mut part = Vec::new();
     for &(sx, sy, _) in pixels {
-        let s0 = (sy - by0) * gw + (sx - bx0);
+        let s0 = at(sx, sy);
         if grid[s0] == 0 {
             continue;
         }
-        stack.push(s0);
+        stack.push((sx, sy));
         part.clear();
         part.push((sx, sy, grid[s0]));
         grid[s0] = 0;
-        while let Some(i) = stack.pop() {
-            let (x, y) = (i % gw, i / gw);
-            for dy in -1i64..=1 {
-                for dx in -1i64..=1 {
-                    let nx = x as i64 + dx;
-                    let ny = y as i64 + dy;
-                    if nx < 0 || ny < 0 || nx >= gw as i64 || ny >= gh as i64 {
-                        continue;
-                    }
-                    let j = ny as usize * gw + nx as usize;
+        while let Some((x, y)) = stack.pop() {
+            let i = at(x, y);
+            for (row, ny) in [(i - gw, y.wrapping_sub(1)), (i, y), (i + gw, y + 1)] {
+                for (j, nx) in [(row - 1, x.wrapping_sub(1)), (row, x), (row + 1, x + 1)] {
                     if grid[j] != 0 {
-                        part.push((nx as usize + bx0, ny as usize + by0, grid[j]));
+                        part.push((nx, ny, grid[j]));
                         grid[j] = 0;
-                        stack.push(j);
+                        stack.push((nx, ny));
                     }
                 }
             }
@@ -1494,7 +1520,6 @@ fn measure_blob(
     // there).
     let fit = (roundness < THIN_BLOB_ROUNDNESS)
         .then(|| background_plane(image, (rx0, ry0, rx1, ry1), background));
-    let plane = |x: usize, y: usize| fit.as_ref().map_or(background, |p| p(x, y));
     let (cx0, cy0) = (bx0.saturating_sub(RIM_PX), by0.saturating_sub(RIM_PX));
     let (cx1, cy1) = ((bx1 + RIM_PX).min(w - 1), (by1 + RIM_PX).min(h - 1));
     // Only pixels near the blob's own count: per row, the columns of the blob's pixels in
@@ -1506,26 +1531,20 @@ fn measure_blob(
         let c = &mut columns[y - cy0];
         *c = (c.0.min(x), c.1.max(x));
     }
-    let (mut sw, mut swx, mut swy) = (0.0, 0.0, 0.0);
     // Ignore weights below a noise floor of 10 % of the peak.
     let floor = 0.1 * peak;
-    for y in cy0..=cy1 {
-        let near_rows =
-            &columns[y.saturating_sub(RIM_PX).max(cy0) - cy0..=(y + RIM_PX).min(cy1) - cy0];
-        let (a, b) = near_rows
-            .iter()
-            .fold((usize::MAX, 0), |(a, b), c| (a.min(c.0), b.max(c.1)));
-        if a > b {
-            continue;
+    let near = (&columns[..], (cx0, cy0, cx1, cy1));
+    let (sw, swx, swy) = match &fit {
+        Some(plane) => weighted_sums(image, near, |x, y, v| {
+            (sign * (plane(x, y) - f64::from(v)) - floor).max(0.0)
+        }),
+        None => {
+            // The weight of each level against the constant background, looked up.
+            let weights: [f64; 256] =
+                std::array::from_fn(|v| (sign * (background - v as f64) - floor).max(0.0));
+            weighted_sums(image, near, |_, _, v| weights[usize::from(v)])
         }
-        for x in a.saturating_sub(RIM_PX).max(cx0)..=(b + RIM_PX).min(cx1) {
-            // Branch-free: a weight of zero adds nothing.
-            let wgt = (sign * (plane(x, y) - f64::from(image.data[y * w + x])) - floor).max(0.0);
-            sw += wgt;
-            swx += wgt * x as f64;
-            swy += wgt * y as f64;
-        }
-    }
+    };
     if sw <= 0.0 {
         return Err(RejectReason::LowContrast);
     }
@@ -1549,6 +1568,39 @@ fn measure_blob(
         axis_rad,
         streak: false,
     })
+}
+
+/// The sums `Σw`, `Σw·x` and `Σw·y` of the weights `weight(x, y, level)` over the pixels
+/// near a blob: per row of the box `(cx0, cy0, cx1, cy1)` (inclusive), the columns of the
+/// blob's pixels in the rows within [`RIM_PX`] (`columns`, per row from `cy0`: the
+/// blob's first and last column there), grown by [`RIM_PX`].
+fn weighted_sums(
+    image: &GrayImage,
+    (columns, (cx0, cy0, cx1, cy1)): (&[(usize, usize)], (usize, usize, usize, usize)),
+    weight: impl Fn(usize, usize, u8) -> f64,
+) -> (f64, f64, f64) {
+    let w = image.width as usize;
+    let (mut sw, mut swx, mut swy) = (0.0, 0.0, 0.0);
+    for y in cy0..=cy1 {
+        let near_rows =
+            &columns[y.saturating_sub(RIM_PX).max(cy0) - cy0..=(y + RIM_PX).min(cy1) - cy0];
+        let (a, b) = near_rows
+            .iter()
+            .fold((usize::MAX, 0), |(a, b), c| (a.min(c.0), b.max(c.1)));
+        if a > b {
+            continue;
+        }
+        let xa = a.saturating_sub(RIM_PX).max(cx0);
+        let row = &image.data[y * w..(y + 1) * w];
+        for (x, &v) in (xa..=(b + RIM_PX).min(cx1)).zip(&row[xa..]) {
+            // Branch-free: a weight of zero adds nothing.
+            let wgt = weight(x, y, v);
+            sw += wgt;
+            swx += wgt * x as f64;
+            swy += wgt * y as f64;
+        }
+    }
+    (sw, swx, swy)
 }
 
 /// How far the image's edge pulls the centroid of a dot of radius `r` whose blob's centroid
@@ -2167,6 +2219,21 @@ mod tests {
             ..Default::default()
         };
         assert!(detect_markers(&img, &params).is_empty());
+    }
+
+    #[test]
+    fn the_reciprocal_divides_exactly() {
+        // Every quotient's edges (k·a − 1, k·a, k·a + 1) up to 255 levels, for every
+        // window area the thresholds use and then some.
+        for a in 1..(1 << 15) {
+            let inverse = Reciprocal::new(a).unwrap();
+            for k in 0..=256u32 {
+                for d in [k * a, (k * a).saturating_sub(1), k * a + 1] {
+                    assert_eq!(inverse.quotient(d), d / a, "{d} / {a}");
+                }
+            }
+        }
+        assert!(Reciprocal::new(0).is_none() && Reciprocal::new(1 << 15).is_none());
     }
 
     #[test]

@@ -117,9 +117,151 @@ impl SearchWindows {
     }
 }
 
+/// Rectangles bucketed in square cells, to ask whether a box meets any of them in time
+/// that grows with the rectangles near the box, not with all of them (a detector asks it
+/// of every blob in the windows, with a hundred rectangles a camera).
+#[derive(Debug, Clone)]
+pub struct RectGrid<'a> {
+    rects: &'a [Rect],
+    /// Corner of cell (0, 0), pixels.
+    origin: (i64, i64),
+    /// Cells per row and per column.
+    size: (usize, usize),
+    /// Rectangles of cell `k`: `members[offsets[k]..offsets[k + 1]]`.
+    offsets: Vec<usize>,
+    members: Vec<u32>,
+}
+
+impl<'a> RectGrid<'a> {
+    /// Side of a cell, pixels.
+    const CELL_PX: i64 = 32;
+
+    /// The grid of `rects`.
+    pub fn new(rects: &'a [Rect]) -> Self {
+        // Each rectangle's cells: those over its columns `a..c` and rows `b..d`, and for
+        // an empty or inverted one, over `c − 1..=a` (the columns every box that
+        // `meets_any` counts as meeting it holds; likewise rows).
+        let span = |a: u32, c: u32| {
+            let (a, last) = (i64::from(a), i64::from(c) - 1);
+            (a.min(last), a.max(last))
+        };
+        let spans: Vec<((i64, i64), (i64, i64))> = rects
+            .iter()
+            .map(|&(a, b, c, d)| (span(a, c), span(b, d)))
+            .collect();
+        let origin = spans.iter().fold((i64::MAX, i64::MAX), |o, (x, y)| {
+            (o.0.min(x.0), o.1.min(y.0))
+        });
+        let end = spans.iter().fold((i64::MIN, i64::MIN), |e, (x, y)| {
+            (e.0.max(x.1), e.1.max(y.1))
+        });
+        let mut grid = Self {
+            rects,
+            origin,
+            size: (0, 0),
+            offsets: vec![0],
+            members: Vec::new(),
+        };
+        if spans.is_empty() {
+            return grid;
+        }
+        let cells = |lo: i64, hi: i64| ((hi - lo) / Self::CELL_PX + 1) as usize;
+        grid.size = (cells(origin.0, end.0), cells(origin.1, end.1));
+        let cell_range = |(lo, hi): (i64, i64), o: i64| {
+            ((lo - o) / Self::CELL_PX) as usize..=((hi - o) / Self::CELL_PX) as usize
+        };
+        let mut counts = vec![0usize; grid.size.0 * grid.size.1 + 1];
+        for (x, y) in &spans {
+            for cy in cell_range(*y, origin.1) {
+                for cx in cell_range(*x, origin.0) {
+                    counts[cy * grid.size.0 + cx + 1] += 1;
+                }
+            }
+        }
+        for k in 1..counts.len() {
+            counts[k] += counts[k - 1];
+        }
+        grid.members = vec![0; counts[counts.len() - 1]];
+        let mut fill = counts.clone();
+        for (i, (x, y)) in spans.iter().enumerate() {
+            for cy in cell_range(*y, origin.1) {
+                for cx in cell_range(*x, origin.0) {
+                    let k = cy * grid.size.0 + cx;
+                    grid.members[fill[k]] = i as u32;
+                    fill[k] += 1;
+                }
+            }
+        }
+        grid.offsets = counts;
+        grid
+    }
+
+    /// Whether the box of columns `x0..=x1` and rows `y0..=y1` meets one of the rectangles
+    /// `(a, b, c, d)`: `x0 < c`, `x1 ≥ a`, `y0 < d` and `y1 ≥ b`.
+    pub fn meets_any(&self, (x0, y0, x1, y1): (i64, i64, i64, i64)) -> bool {
+        let (cols, rows) = self.size;
+        if cols == 0 || x1 < x0 || y1 < y0 {
+            return false;
+        }
+        let clamp = |v: i64, o: i64, n: usize| ((v - o).max(0) / Self::CELL_PX).min(n as i64 - 1);
+        let (cx0, cx1) = (
+            clamp(x0, self.origin.0, cols),
+            clamp(x1, self.origin.0, cols),
+        );
+        let (cy0, cy1) = (
+            clamp(y0, self.origin.1, rows),
+            clamp(y1, self.origin.1, rows),
+        );
+        (cy0..=cy1).any(|cy| {
+            (cx0..=cx1).any(|cx| {
+                let k = cy as usize * cols + cx as usize;
+                self.members[self.offsets[k]..self.offsets[k + 1]]
+                    .iter()
+                    .any(|&i| {
+                        let (a, b, c, d) = self.rects[i as usize];
+                        x0 < i64::from(c)
+                            && x1 >= i64::from(a)
+                            && y0 < i64::from(d)
+                            && y1 >= i64::from(b)
+                    })
+            })
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    use rand::rngs::StdRng;
+    use rand::{Rng, SeedableRng};
+
     use super::*;
+
+    #[test]
+    fn the_grid_tells_boxes_that_meet_a_rectangle_as_brute_force() {
+        let mut rects: Vec<Rect> = vec![(40, 40, 40, 40), (90, 10, 80, 12), (0, 0, 1, 1)];
+        let mut rng = StdRng::seed_from_u64(7);
+        let mut next = |n: u32| rng.random_range(0..n);
+        for _ in 0..60 {
+            let (x, y) = (next(300), next(200));
+            rects.push((x, y, x + next(50), y + next(50)));
+        }
+        let grid = RectGrid::new(&rects);
+        let mut met = 0;
+        for _ in 0..20_000 {
+            let (x0, y0) = (i64::from(next(400)) - 40, i64::from(next(300)) - 40);
+            let b = (x0, y0, x0 + i64::from(next(30)), y0 + i64::from(next(30)));
+            let brute = rects.iter().any(|&(a, bb, c, d)| {
+                b.0 < i64::from(c)
+                    && b.2 >= i64::from(a)
+                    && b.1 < i64::from(d)
+                    && b.3 >= i64::from(bb)
+            });
+            assert_eq!(grid.meets_any(b), brute, "{b:?}");
+            met += usize::from(brute);
+        }
+        assert!(met > 2_000 && met < 18_000, "{met} boxes met a rectangle");
+        assert!(!RectGrid::new(&[]).meets_any((0, 0, 10, 10)));
+    }
 
     /// Membership by brute force.
     fn inside(rects: &[Rect], clip: (usize, usize, usize, usize), x: usize, y: usize) -> bool {
