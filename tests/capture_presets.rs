@@ -271,13 +271,14 @@ enum Goal {
     Floor { labeled: f64, max_wrong: usize },
 }
 
-/// The presets of the matrix and what each must reach.
-const PRESETS: &[(&str, Goal)] = &[
-    ("clean-far", Goal::Full),
-    ("near-face", Goal::Full),
-    ("wide-mixed", Goal::Full),
+/// The presets of the matrix, the frames rendered of each, and what each must reach.
+const PRESETS: &[(&str, usize, Goal)] = &[
+    ("clean-far", 60, Goal::Full),
+    ("near-face", 60, Goal::Full),
+    ("wide-mixed", 60, Goal::Full),
     (
         "cluttered",
+        60,
         // Measured 97.1 % labeled (97.0 % before a worn dot's pair got a wider epipolar
         // gate, 95.7 % before streaks were reported, 94.4 % before dots merged with a
         // mole were labeled at their lobe, 88.5 % before worn dots were taken and frame 0
@@ -291,11 +292,14 @@ const PRESETS: &[(&str, Goal)] = &[
             max_wrong: 1,
         },
     ),
-    ("wiped-moles", Goal::Full),
-    ("bright-dots", Goal::Full),
-    ("color-dots", Goal::Full),
-    ("mono16", Goal::Full),
-    ("vga", Goal::Full),
+    ("wiped-moles", 60, Goal::Full),
+    // Two seconds: the first press comes after the neutral lead, and dots hidden by a
+    // press come back from behind the lip only in the second.
+    ("lip-press", 120, Goal::Full),
+    ("bright-dots", 60, Goal::Full),
+    ("color-dots", 60, Goal::Full),
+    ("mono16", 60, Goal::Full),
+    ("vga", 60, Goal::Full),
 ];
 
 /// Renders a session into `dir/name` with `helmcap synth` and `synth_args`, replays it
@@ -336,7 +340,7 @@ fn every_preset_reaches_its_goal() {
     report(
         "preset        frames  detectable  labeled %  wrong  bundle RMS  bound    ratio  pose held",
     );
-    for &(preset, goal) in PRESETS {
+    for &(preset, frames, goal) in PRESETS {
         if only
             .as_ref()
             .is_some_and(|o| !o.iter().any(|x| x == preset))
@@ -344,7 +348,8 @@ fn every_preset_reaches_its_goal() {
             continue;
         }
         assert!(listed.contains(preset), "synth has no preset {preset}");
-        let f = render_and_replay(dir.path(), preset, &["--preset", preset, "-n", "60"]);
+        let frames = frames.to_string();
+        let f = render_and_replay(dir.path(), preset, &["--preset", preset, "-n", &frames]);
         let share = f.labeled_detectable as f64 / f.detectable.max(1) as f64;
         let ratio = f.bundle_rms_mm / f.bound_mm.max(1e-9);
         report(&format!(
@@ -429,6 +434,43 @@ fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {
             failures.push(format!(
                 "wiped-moles seed {seed}: {:.2} % of detectable labeled",
                 100.0 * share
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `lip-press` set-ups beyond its default seed on which markers are still labeled on the
+/// wrong spot (run with `--ignored`; README, "Capture presets"): a lip dot that moves
+/// 12-14 px a frame as the lips press is lost for a frame, and the mole beside it, which
+/// the press carries to where the dot was, is taken for it and followed (seed 2, M053,
+/// 8 labels 21-29 px off); a dot seen edge-on, not visible in one camera, labeled there on
+/// the mole beside it 5-6 px from its place (seeds 3 and 4).
+const LIP_PRESS_SET_UPS: [u64; 3] = [2, 3, 4];
+
+#[test]
+#[ignore = "known wrong labels under lip presses (see LIP_PRESS_SET_UPS)"]
+fn moles_beside_lip_dots_are_not_taken_on_more_set_ups() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    for seed in LIP_PRESS_SET_UPS {
+        let seed_arg = seed.to_string();
+        let f = render_and_replay(
+            dir.path(),
+            &format!("lip-press-{seed}"),
+            &["--preset", "lip-press", "--seed", &seed_arg, "-n", "120"],
+        );
+        let share = f.labeled_detectable as f64 / f.detectable.max(1) as f64;
+        report(&format!(
+            "lip-press seed {seed}: {:.2} % of detectable labeled, {} wrong",
+            100.0 * share,
+            f.wrong
+        ));
+        if f.wrong > 0 || share < 0.99 {
+            failures.push(format!(
+                "lip-press seed {seed}: {:.2} % labeled, {} wrong",
+                100.0 * share,
+                f.wrong
             ));
         }
     }

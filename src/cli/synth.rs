@@ -64,9 +64,10 @@ pub struct SynthArgs {
     /// the preset's].
     #[arg(long)]
     motion_blur: Option<usize>,
-    /// Mean time between lip presses (lips squeezed together), seconds (0: none).
-    #[arg(long, default_value_t = AnimationParams::default().lip_press_interval_secs)]
-    lip_press_interval: f64,
+    /// Mean time between lip presses (lips squeezed together), seconds (0: none)
+    /// [default: 0, or the preset's].
+    #[arg(long)]
+    lip_press_interval: Option<f64>,
     /// Helmet slip translation amplitude, mm (0: none) [default: 0, or the preset's].
     #[arg(long)]
     slip_mm: Option<f64>,
@@ -162,6 +163,11 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
         }
     };
     let names = performer.expression_names();
+    let lip_presses = chosen
+        .as_ref()
+        .map_or(AnimationParams::default().lip_press_interval_secs, |p| {
+            p.lip_press_interval_secs
+        });
     let mut params = chosen.map_or_else(SynthParams::default, |p| p.params);
     if let Some(path) = &args.profile {
         apply_profile(&mut params, path)?;
@@ -175,7 +181,7 @@ pub fn run(args: SynthArgs) -> anyhow::Result<()> {
             }
             let a = AnimationParams {
                 seed: args.seed,
-                lip_press_interval_secs: args.lip_press_interval,
+                lip_press_interval_secs: args.lip_press_interval.unwrap_or(lip_presses),
                 ..AnimationParams::default()
             };
             a.validate()?;

@@ -13,6 +13,9 @@ pub struct Preset {
     pub name: &'static str,
     /// One line on what it is.
     pub summary: &'static str,
+    /// Mean time between lip presses of the expression curves, seconds (0: none; see
+    /// [`super::AnimationParams::lip_press_interval_secs`]).
+    pub lip_press_interval_secs: f64,
     /// Rendering parameters (every preset writes a capture profile).
     pub params: SynthParams,
     /// The rig, generated; `None`: the shipped helmet rig (`calib/helmet-fisheye.yaml`).
@@ -20,12 +23,13 @@ pub struct Preset {
 }
 
 /// The preset names, in the order `--list-presets` shows them.
-pub const PRESET_NAMES: [&str; 9] = [
+pub const PRESET_NAMES: [&str; 10] = [
     "clean-far",
     "near-face",
     "wide-mixed",
     "cluttered",
     "wiped-moles",
+    "lip-press",
     "bright-dots",
     "color-dots",
     "mono16",
@@ -74,6 +78,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "clean-far",
             summary: "the default rendering: shipped 1280x1024 fisheye rig, face 225 mm away, \
                       2.4 mm dark dots about 7 px across, clean skin",
+            lip_press_interval_secs: 0.0,
             params: generated,
             rig: None,
         },
@@ -81,6 +86,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "near-face",
             summary: "face-filling near rig: 1280x1024 fisheye at 85 deg, 120 mm, 2.6 mm dots \
                       15-25 px across, 2 mm / 1 deg helmet slip",
+            lip_press_interval_secs: 0.0,
             params: near_params(),
             rig: Some(near_rig()),
         },
@@ -88,6 +94,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "wide-mixed",
             summary: "wide 150 deg fisheye 100 mm from the face, 1600x1200: 3.5 mm dots from \
                       about 4 px (far cheek, slanted) to 30 px (nose tip) in one image",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 face_distance_mm: 100.0,
                 marker_radius_mm: 1.75,
@@ -107,6 +114,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             summary: "near-face with real skin and light: freckles, moles (some beside dots), \
                       hair across dots, pores, wet sheen, 100 Hz light flicker, boom shadow, \
                       smudged and wiped dots, defocus and motion blur",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 specular: 0.35,
                 blur_px: 0.7,
@@ -136,6 +144,7 @@ pub fn preset(name: &str) -> Option<Preset> {
                       at frames up to 40 (mid-take, after they were tracked), and a mole as dark as the ink beside each \
                       (0.2-1.5 mm from where its rim was), among freckles: a missing marker \
                       must stay missing",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 skin: SkinParams {
                     freckles: 200,
@@ -148,10 +157,29 @@ pub fn preset(name: &str) -> Option<Preset> {
             },
             rig: Some(near_rig()),
         },
+        "lip-press" => Preset {
+            name: "lip-press",
+            summary: "near-face with the lips pressed together about every half second, \
+                      hiding the dots on them for up to half a second, and a mole as dark as \
+                      the ink beside one dot in three (0.2-1.5 mm from its rim), among \
+                      freckles: a dot back from behind the lip must not be a mole",
+            lip_press_interval_secs: 0.5,
+            params: SynthParams {
+                skin: SkinParams {
+                    freckles: 200,
+                    moles: 40,
+                    moles_beside_dots: 1.0,
+                    ..SkinParams::default()
+                },
+                ..near_params()
+            },
+            rig: Some(near_rig()),
+        },
         "bright-dots" => Preset {
             name: "bright-dots",
             summary: "retroreflective 3 mm dots under the ring light, bright on darker skin \
                       (shipped rig, 200 mm)",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 face_distance_mm: 200.0,
                 marker_radius_mm: 1.5,
@@ -165,6 +193,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "color-dots",
             summary: "RGB camera (1280x1024 pinhole at 90 deg, 180 mm), skin-coloured face, \
                       green 2.4 mm dots",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 face_distance_mm: 180.0,
                 color: Some(ColorParams::default()),
@@ -182,6 +211,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "mono16",
             summary: "machine-vision 2448x2048 monochrome camera, 12-bit data in 16-bit PNG, \
                       pinhole at 100 deg, 200 mm",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 face_distance_mm: 200.0,
                 bit_depth: BitDepth::Twelve,
@@ -200,6 +230,7 @@ pub fn preset(name: &str) -> Option<Preset> {
             name: "vga",
             summary: "low-resolution 640x480 pinhole camera at 80 deg, 180 mm, 3 mm dots about \
                       6 px across",
+            lip_press_interval_secs: 0.0,
             params: SynthParams {
                 face_distance_mm: 180.0,
                 marker_radius_mm: 1.5,
