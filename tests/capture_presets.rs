@@ -440,29 +440,28 @@ fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// `lip-press` set-ups beyond its default seed on which markers are still labeled on the
-/// wrong spot (run with `--ignored`; README, "Capture presets"): a lip dot that moves
-/// 12-14 px a frame as the lips press is lost for a frame, and the mole beside it, which
-/// the press carries to where the dot was, is taken for it and followed (seed 2, M053,
-/// 8 labels 21-29 px off); a dot seen edge-on, not visible in one camera, labeled there on
-/// the mole beside it 5-6 px from its place (seeds 3 and 4).
-const LIP_PRESS_SET_UPS: [u64; 3] = [2, 3, 4];
-
-#[test]
-#[ignore = "known wrong labels under lip presses (see LIP_PRESS_SET_UPS)"]
-fn moles_beside_lip_dots_are_not_taken_on_more_set_ups() {
+/// Renders and replays `lip-press` set-ups (seed, frames) and lists those with a wrong
+/// label or under 99 % labeled.
+fn lip_press_failures(set_ups: &[(u64, usize)]) -> Vec<String> {
     let dir = tempfile::tempdir().unwrap();
     let mut failures = Vec::new();
-    for seed in LIP_PRESS_SET_UPS {
-        let seed_arg = seed.to_string();
+    for &(seed, frames) in set_ups {
+        let (seed_arg, frames_arg) = (seed.to_string(), frames.to_string());
         let f = render_and_replay(
             dir.path(),
             &format!("lip-press-{seed}"),
-            &["--preset", "lip-press", "--seed", &seed_arg, "-n", "120"],
+            &[
+                "--preset",
+                "lip-press",
+                "--seed",
+                &seed_arg,
+                "-n",
+                &frames_arg,
+            ],
         );
         let share = f.labeled_detectable as f64 / f.detectable.max(1) as f64;
         report(&format!(
-            "lip-press seed {seed}: {:.2} % of detectable labeled, {} wrong",
+            "lip-press seed {seed}: {frames} frames, {:.2} % of detectable labeled, {} wrong",
             100.0 * share,
             f.wrong
         ));
@@ -474,5 +473,31 @@ fn moles_beside_lip_dots_are_not_taken_on_more_set_ups() {
             ));
         }
     }
+    failures
+}
+
+/// A `lip-press` set-up beyond its default seed that once had a mole taken for a lip dot:
+/// the dot, moved 7 px in a frame together with the mole beside it, was lost for that
+/// frame (the mole a rival of it), then taken on the mole from where it was last seen and
+/// followed on it for eight frames, 21-29 px off (seed 2, M053; see
+/// `Labeler::doubt_told_by_size`). Frames: up to where that happened and after.
+const LIP_PRESS_SET_UPS: [(u64, usize); 1] = [(2, 100)];
+
+#[test]
+fn a_lip_dot_moved_with_its_mole_is_not_followed_on_the_mole() {
+    let failures = lip_press_failures(&LIP_PRESS_SET_UPS);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `lip-press` set-ups on which markers are still labeled on the wrong spot (run with
+/// `--ignored`; README, "Capture presets"): a dot seen nearly edge-on from one camera,
+/// hidden there or merged there with the mole beside it, labeled in that camera on the
+/// mole or the merged blob 5-6 px from its place (seeds 3, 4 and 7).
+const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 3] = [(3, 120), (4, 120), (7, 120)];
+
+#[test]
+#[ignore = "known wrong labels under lip presses (see LIP_PRESS_KNOWN_WRONG)"]
+fn moles_merged_with_edge_on_lip_dots_are_not_labeled() {
+    let failures = lip_press_failures(&LIP_PRESS_KNOWN_WRONG);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

@@ -268,7 +268,8 @@ pub struct LabelParams {
     /// the other. Default 0.15: on nine cluttered and wiped-moles set-ups, the right
     /// returns after 10 frames or more were within 10 % of the dot's last size in one
     /// camera at least, the three moles taken for wiped markers 0.75, 1.22 and 1.40 of it
-    /// in both.
+    /// in both. The same share tells a tracked marker's dot that moved suddenly from a
+    /// rival blob beside it (see `Labeler::doubt_told_by_size`).
     pub returning_max_size_change: f64,
     /// Whether a marker may be labeled on a worn dot: a blob that fails the dot's shape
     /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],

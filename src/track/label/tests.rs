@@ -2252,3 +2252,70 @@ fn a_dot_back_whole_after_sinking_behind_the_lip_is_labeled() {
         "the dots back whole were not all labeled"
     );
 }
+
+#[test]
+fn a_dot_that_jumps_with_the_mole_beside_it_is_told_from_it_by_size() {
+    // Markers tracked still for ten frames, each with a mole 3 mm beside its dot, 1.3 times
+    // the dot's size, seen by cam0; at frame 10 dot and mole jump 3.5 mm together (a lip
+    // press), the dot beyond its tight gate, the mole a rival of it at the pose pass's
+    // wide gate. The dots are labeled in the frame they jump, told from the moles by
+    // their size; without the rule they are lost in that frame (the pose pass's label
+    // was in doubt).
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(18);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let jumping = [7, 33, 61, 88];
+    let beside = |k: usize| normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 3.0;
+    let jump = Vector3::new(0.0, -3.5, 0.0);
+    let run = |change: f64| -> (usize, usize) {
+        let params = LabelParams {
+            returning_max_size_change: change,
+            ..LabelParams::default()
+        };
+        let mut lab = Labeler::new(rig.clone(), &layout, pts.clone(), params).unwrap();
+        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut rng = Rng::new(118);
+        let (mut wrong_total, mut labeled_at_jump) = (0, 0);
+        for f in 0..12usize {
+            let moved = if f >= 10 { jump } else { Vector3::zeros() };
+            let mut now = pts.clone();
+            for &k in &jumping {
+                now[k] += moved;
+            }
+            let mut obs = observe(&rig, &pose, &now, &[], 0.15, 0, &mut rng);
+            for &k in &jumping {
+                let at = add_blob(&rig, &pose, &mut obs, &(now[k] + beside(k)), |dot_px| {
+                    (1.3 * dot_px, 0.95, 1.0)
+                });
+                // Seen by cam0 only (in both, the moles make a pair of their own, which
+                // keeps the pose pass from labeling the marker at all).
+                if at[1].is_some() {
+                    obs[1].0.pop();
+                    obs[1].1.pop();
+                }
+            }
+            let truth = [obs[0].1.clone(), obs[1].1.clone()];
+            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+            wrong_total += count(&out, &truth).1;
+            if f == 10 {
+                labeled_at_jump = jumping
+                    .iter()
+                    .filter(|&&k| out.markers[k].is_some())
+                    .count();
+            }
+        }
+        (wrong_total, labeled_at_jump)
+    };
+    let (wrong, labeled) = run(LabelParams::default().returning_max_size_change);
+    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
+    assert_eq!(
+        labeled,
+        jumping.len(),
+        "the dots that jumped were not labeled"
+    );
+    let (_, labeled) = run(0.0);
+    assert!(
+        labeled < jumping.len(),
+        "without the rule the dots that jumped are labeled: the test shows nothing"
+    );
+}

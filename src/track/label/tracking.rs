@@ -735,7 +735,7 @@ impl Labeler {
         // Pass 2: tight gates around predictions under the estimated pose.
         let tight = self.predictions(&pose, steps, 0.0);
         let mut second = self.label_pass(&tight, pixels);
-        self.label_sudden_moves(&first, &tight, pixels, &mut second);
+        self.label_sudden_moves(&first, &wide, &tight, pixels, &mut second);
         self.label_where_last_seen(&pose, steps, &tight, pixels, &mut second);
         let final_pose = match self.estimate_pose(&second.labels) {
             Some((pose, rms)) if rms <= self.params.max_pose_rms_mm => pose,
@@ -754,8 +754,9 @@ impl Labeler {
     /// pass (wide gates) but beyond their tight gate (a lip corner still in one frame and
     /// moving 8 px the next; its prediction keeps the last frame's velocity). The pose
     /// pass's label of such a marker is taken when
-    /// - it was confident (no rival candidate in either camera at the wide gate), not on a
-    ///   worn dot, and its detections are still free;
+    /// - it was confident (no rival candidate in either camera at the wide gate), or its
+    ///   rivals are told from it by its dot's size ([`Labeler::doubt_told_by_size`]); not
+    ///   on a worn dot, and its detections are still free;
     /// - the dot left its place: no blob within the tight gate of the prediction in
     ///   either camera;
     /// - its blob is whole: not a piece of the last frame's blob off its place
@@ -768,6 +769,7 @@ impl Labeler {
     fn label_sudden_moves(
         &self,
         first: &PassResult,
+        wide: &[Prediction],
         tight: &[Prediction],
         pixels: &[Vec<Option<Point2<f64>>>; 2],
         labeled: &mut PassResult,
@@ -784,8 +786,7 @@ impl Labeler {
         }
         for l in &first.labels {
             let (i, pr) = (l.marker, &tight[l.marker]);
-            if !l.confident
-                || l.worn
+            if l.worn
                 || done[i]
                 || pr.first_sighting
                 || self.tracks[i].frames_since_seen != Some(0)
@@ -797,6 +798,9 @@ impl Labeler {
             let Some(last) = before.markers.get(i).copied().flatten() else {
                 continue;
             };
+            if !l.confident && !self.doubt_told_by_size(l, wide, pixels, &done) {
+                continue;
+            }
             if let (Some(x0), Some(x1)) = (pixels[0][l.det[0]], pixels[1][l.det[1]])
                 && self.a_piece_off_its_blob(i, pr, l.det, [x0, x1])
             {
@@ -834,6 +838,69 @@ impl Labeler {
                 labeled.labels.push(*l);
             }
         }
+    }
+
+    /// Whether the pose pass's label `l` of a marker, in doubt, is told from its rivals by
+    /// the size of the marker's dot: in each camera, its blob is within
+    /// [`super::LabelParams::returning_max_size_change`] of the dot's size at its last
+    /// label on a whole dot, and every other detection that rivals it (within the wide
+    /// gate of its prediction `wide` and nearer to it than the ambiguity limit, as in
+    /// [`Labeler::label_pass`]) is further off that size than that; and no marker not
+    /// labeled (`done` false) has the blob within its own wide gate. Sizes are taken as
+    /// [`Labeler::size_over_expected`] at the label's point, so that the lens's
+    /// magnification there cancels. A lip dot and the mole beside it, carried 7 px together
+    /// by a lip press, are each other's rivals, the mole 1.3 times the dot's size in both
+    /// cameras (lip-press seed 2's M053, lost for that frame, was then taken on the mole
+    /// from where it was last seen and followed on it for eight frames). A dot whose size
+    /// changed (a hair across it, the lip over it) stays in doubt, as it was.
+    fn doubt_told_by_size(
+        &self,
+        l: &Label,
+        wide: &[Prediction],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+        done: &[bool],
+    ) -> bool {
+        let p = &self.params;
+        let i = l.marker;
+        let Some(last) = self.tracks[i].size_over_expected else {
+            return false;
+        };
+        let change = p.returning_max_size_change;
+        let point = l.bundle.point_in_cam0;
+        let in_cam1 = self.rig.cam1_from_cam0 * point;
+        let cams = [
+            (&self.rig.cam0, point.coords),
+            (&self.rig.cam1, in_cam1.coords),
+        ];
+        change > 0.0
+            && (0..2).all(|c| {
+                let (Some(q), Some(x)) = (wide[i].pixels[c], pixels[c][l.det[c]]) else {
+                    return false;
+                };
+                let Some((_, jacobian)) = cams[c].0.project_with_jacobian(&cams[c].1) else {
+                    return false;
+                };
+                let largest = singular_values(&jacobian).0 * p.dot_diameter_mm;
+                let like_its_dot = |det: usize| {
+                    self.blobs[c].get(det).is_some_and(|b| {
+                        let r = b.diameter_px / largest / last[c];
+                        r.is_finite() && r <= 1.0 + change && r * (1.0 + change) >= 1.0
+                    })
+                };
+                let limit = p.ambiguity_ratio * (x - q).norm() + p.ambiguity_margin_px;
+                let rivals_unlike = pixels[c].iter().enumerate().all(|(b, d)| {
+                    let Some(d) = d else { return true };
+                    let e = (d - q).norm();
+                    b == l.det[c]
+                        || e > wide[i].gate_px
+                        || e >= limit
+                        || (self.blobs[c].get(b).is_some() && !like_its_dot(b))
+                });
+                let claimed = wide.iter().enumerate().any(|(j, w)| {
+                    j != i && !done[j] && w.pixels[c].is_some_and(|qj| (x - qj).norm() <= w.gate_px)
+                });
+                like_its_dot(l.det[c]) && rivals_unlike && !claimed
+            })
     }
 
     /// How far from a marker's dot the blobs beside it are remembered, pixels: as far as
