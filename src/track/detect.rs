@@ -1533,16 +1533,16 @@ fn measure_blob(
     }
     // Ignore weights below a noise floor of 10 % of the peak.
     let floor = 0.1 * peak;
-    let near = (&columns[..], (cx0, cy0, cx1, cy1));
+    let near = (cx0, cy0, cx1, cy1);
     let (sw, swx, swy) = match &fit {
-        Some(plane) => weighted_sums(image, near, |x, y, v| {
+        Some(plane) => weighted_sums(image, &columns, near, |x, y, v| {
             (sign * (plane(x, y) - f64::from(v)) - floor).max(0.0)
         }),
         None => {
             // The weight of each level against the constant background, looked up.
             let weights: [f64; 256] =
                 std::array::from_fn(|v| (sign * (background - v as f64) - floor).max(0.0));
-            weighted_sums(image, near, |_, _, v| weights[usize::from(v)])
+            weighted_sums(image, &columns, near, |_, _, v| weights[usize::from(v)])
         }
     };
     if sw <= 0.0 {
@@ -1576,7 +1576,8 @@ fn measure_blob(
 /// blob's first and last column there), grown by [`RIM_PX`].
 fn weighted_sums(
     image: &GrayImage,
-    (columns, (cx0, cy0, cx1, cy1)): (&[(usize, usize)], (usize, usize, usize, usize)),
+    columns: &[(usize, usize)],
+    (cx0, cy0, cx1, cy1): (usize, usize, usize, usize),
     weight: impl Fn(usize, usize, u8) -> f64,
 ) -> (f64, f64, f64) {
     let w = image.width as usize;
