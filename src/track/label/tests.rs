@@ -231,6 +231,28 @@ fn labeler_with_normals(layout: &MarkerLayout, pts: &[Point3<f64>], normals: boo
     lab
 }
 
+/// A labeler with `params` on the shipped rig, told the skin's normals at the markers.
+fn labeler_with_params(layout: &MarkerLayout, pts: &[Point3<f64>], params: LabelParams) -> Labeler {
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let mut lab = Labeler::new(rig, layout, pts.to_vec(), params).unwrap();
+    assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+    lab
+}
+
+/// The point `mm` from marker point `p` sideways along the skin: where a mole beside its
+/// dot is.
+fn beside(p: &Point3<f64>, mm: f64) -> Point3<f64> {
+    p + normal_at(p).cross(&Vector3::y()).normalize() * mm
+}
+
+/// How many of `markers` `frame` labels.
+fn labeled_among(frame: &LabeledFrame, markers: &[usize]) -> usize {
+    markers
+        .iter()
+        .filter(|&&k| frame.markers[k].is_some())
+        .count()
+}
+
 #[test]
 fn acquires_under_arbitrary_head_poses() {
     let rig = crate::camera::default_helmet_rig().unwrap();
@@ -2065,10 +2087,7 @@ fn a_marker_never_seen_is_labeled_only_once_found_in_consecutive_frames() {
     let (layout, pts) = face(14);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let hidden = [5, 18, 30, 47, 63, 75];
-    let moles: Vec<Point3<f64>> = hidden
-        .iter()
-        .map(|&k| pts[k] + normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 1.0)
-        .collect();
+    let moles: Vec<Point3<f64>> = hidden.iter().map(|&k| beside(&pts[k], 1.0)).collect();
     let mut lab = labeler_with_normals(&layout, &pts, true);
     let mut rng = Rng::new(114);
     let mut moles_shown = 0;
@@ -2085,7 +2104,7 @@ fn a_marker_never_seen_is_labeled_only_once_found_in_consecutive_frames() {
         let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         let (_, wrong) = count(&out, &truth);
         assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
-        let back = hidden.iter().filter(|&&k| out.markers[k].is_some()).count();
+        let back = labeled_among(&out, &hidden);
         match f {
             ..15 => assert_eq!(back, 0, "frame {f}"),
             15.. => assert_eq!(back, hidden.len(), "frame {f}"),
@@ -2106,17 +2125,13 @@ fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
     let (layout, pts) = face(15);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let hidden = [6, 19, 33, 48, 61, 77];
-    let moles: Vec<Point3<f64>> = hidden
-        .iter()
-        .map(|&k| pts[k] + normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 2.0)
-        .collect();
+    let moles: Vec<Point3<f64>> = hidden.iter().map(|&k| beside(&pts[k], 2.0)).collect();
     let run = |share: f64| -> (usize, usize) {
         let params = LabelParams {
             never_seen_min_relative_size: share,
             ..LabelParams::default()
         };
-        let mut lab = Labeler::new(rig.clone(), &layout, pts.clone(), params).unwrap();
-        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut lab = labeler_with_params(&layout, &pts, params);
         let mut rng = Rng::new(115);
         let (mut wrong_total, mut back) = (0, 0);
         for f in 0..26usize {
@@ -2131,7 +2146,7 @@ fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
             wrong_total += count(&out, &truth).1;
             if f == 25 {
-                back = hidden.iter().filter(|&&k| out.markers[k].is_some()).count();
+                back = labeled_among(&out, &hidden);
             }
         }
         (wrong_total, back)
@@ -2157,17 +2172,13 @@ fn a_mole_where_a_marker_gone_for_long_should_be_is_not_taken_for_it() {
     let (layout, pts) = face(16);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let wiped = [7, 20, 34, 49, 62, 78];
-    let moles: Vec<Point3<f64>> = wiped
-        .iter()
-        .map(|&k| pts[k] + normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 2.0)
-        .collect();
+    let moles: Vec<Point3<f64>> = wiped.iter().map(|&k| beside(&pts[k], 2.0)).collect();
     let run = |change: f64| -> (usize, usize) {
         let params = LabelParams {
             returning_max_size_change: change,
             ..LabelParams::default()
         };
-        let mut lab = Labeler::new(rig.clone(), &layout, pts.clone(), params).unwrap();
-        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut lab = labeler_with_params(&layout, &pts, params);
         let mut rng = Rng::new(116);
         let (mut wrong_total, mut back) = (0, 0);
         for f in 0..46usize {
@@ -2188,7 +2199,7 @@ fn a_mole_where_a_marker_gone_for_long_should_be_is_not_taken_for_it() {
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
             wrong_total += count(&out, &truth).1;
             if f == 45 {
-                back = wiped.iter().filter(|&&k| out.markers[k].is_some()).count();
+                back = labeled_among(&out, &wiped);
             }
         }
         (wrong_total, back)
@@ -2233,17 +2244,11 @@ fn a_dot_back_whole_after_sinking_behind_the_lip_is_labeled() {
         }
         let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         if f == 12 {
-            let held = sinking
-                .iter()
-                .filter(|&&k| out.markers[k].is_some())
-                .count();
+            let held = labeled_among(&out, &sinking);
             assert_eq!(held, sinking.len(), "the slivers were not labeled");
         }
         if f == 31 {
-            back = sinking
-                .iter()
-                .filter(|&&k| out.markers[k].is_some())
-                .count();
+            back = labeled_among(&out, &sinking);
         }
     }
     assert_eq!(
@@ -2265,15 +2270,13 @@ fn a_dot_that_jumps_with_the_mole_beside_it_is_told_from_it_by_size() {
     let (layout, pts) = face(18);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let jumping = [7, 33, 61, 88];
-    let beside = |k: usize| normal_at(&pts[k]).cross(&Vector3::y()).normalize() * 3.0;
     let jump = Vector3::new(0.0, -3.5, 0.0);
     let run = |change: f64| -> (usize, usize) {
         let params = LabelParams {
             returning_max_size_change: change,
             ..LabelParams::default()
         };
-        let mut lab = Labeler::new(rig.clone(), &layout, pts.clone(), params).unwrap();
-        assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+        let mut lab = labeler_with_params(&layout, &pts, params);
         let mut rng = Rng::new(118);
         let (mut wrong_total, mut labeled_at_jump) = (0, 0);
         for f in 0..12usize {
@@ -2284,7 +2287,7 @@ fn a_dot_that_jumps_with_the_mole_beside_it_is_told_from_it_by_size() {
             }
             let mut obs = observe(&rig, &pose, &now, &[], 0.15, 0, &mut rng);
             for &k in &jumping {
-                let at = add_blob(&rig, &pose, &mut obs, &(now[k] + beside(k)), |dot_px| {
+                let at = add_blob(&rig, &pose, &mut obs, &beside(&now[k], 3.0), |dot_px| {
                     (1.3 * dot_px, 0.95, 1.0)
                 });
                 // Seen by cam0 only (in both, the moles make a pair of their own, which
@@ -2298,10 +2301,7 @@ fn a_dot_that_jumps_with_the_mole_beside_it_is_told_from_it_by_size() {
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
             wrong_total += count(&out, &truth).1;
             if f == 10 {
-                labeled_at_jump = jumping
-                    .iter()
-                    .filter(|&&k| out.markers[k].is_some())
-                    .count();
+                labeled_at_jump = labeled_among(&out, &jumping);
             }
         }
         (wrong_total, labeled_at_jump)

@@ -7,6 +7,7 @@ use nalgebra::{Isometry3, Matrix2, Point2, Point3, Vector2, Vector3};
 use super::assignment::assign_components;
 use super::{BlobShape, Label, Labeler, Lobes, PassResult, Prediction};
 use crate::align::horn_alignment;
+use crate::camera::Camera;
 use crate::stereo::{Bundle, TriangulateParams, triangulate};
 
 /// After this many labels in a row on blobs smaller than a first sighting may be
@@ -213,17 +214,10 @@ impl Labeler {
         point: &Point3<f64>,
         det: [usize; 2],
     ) -> Option<[f64; 2]> {
-        let in_cam1 = self.rig.cam1_from_cam0 * point;
-        let cams = [
-            (&self.rig.cam0, point.coords),
-            (&self.rig.cam1, in_cam1.coords),
-        ];
         let mut out = [0.0; 2];
-        for (c, (cam, p)) in cams.iter().enumerate() {
+        for c in 0..2 {
             let measured = self.blobs[c].get(det[c])?.diameter_px;
-            let (_, j) = cam.project_with_jacobian(p)?;
-            let largest = singular_values(&j).0 * self.params.dot_diameter_mm;
-            let ratio = measured / largest;
+            let ratio = measured / self.dot_major_axis_px(point, c)?;
             if !(ratio.is_finite() && ratio > 0.0) {
                 return None;
             }
@@ -468,14 +462,28 @@ impl Labeler {
     /// in camera `c` at the size ratio `hi` (its largest magnification through the lens,
     /// as in [`Labeler::dot_sized`]); None when the point does not project.
     pub(super) fn largest_dot_px(&self, point: &Point3<f64>, c: usize, hi: f64) -> Option<f64> {
-        let (cam, p) = if c == 0 {
-            (&self.rig.cam0, point.coords)
-        } else {
-            (&self.rig.cam1, (self.rig.cam1_from_cam0 * point).coords)
-        };
+        let (cam, p) = self.in_camera(point, c);
         let (_, j) = cam.project_with_jacobian(&p)?;
         let (s1, _) = singular_values(&j);
         Some(hi * self.params.dot_diameter_mm * s1 + 2.0)
+    }
+
+    /// Camera `c` and `point` (cam0 frame) in its frame.
+    fn in_camera(&self, point: &Point3<f64>, c: usize) -> (&Camera, Vector3<f64>) {
+        if c == 0 {
+            (&self.rig.cam0, point.coords)
+        } else {
+            (&self.rig.cam1, (self.rig.cam1_from_cam0 * point).coords)
+        }
+    }
+
+    /// The largest major axis a dot of the profile's diameter at `point` (cam0 frame) can
+    /// have in camera `c`, pixels: its diameter at the lens's largest magnification there;
+    /// None when the point does not project.
+    fn dot_major_axis_px(&self, point: &Point3<f64>, c: usize) -> Option<f64> {
+        let (cam, p) = self.in_camera(point, c);
+        let (_, j) = cam.project_with_jacobian(&p)?;
+        Some(singular_values(&j).0 * self.params.dot_diameter_mm)
     }
 
     /// Whether marker `i`'s blobs `det` (at `x`, cam0 and cam1) grew past a whole dot on
@@ -867,20 +875,14 @@ impl Labeler {
         };
         let change = p.returning_max_size_change;
         let point = l.bundle.point_in_cam0;
-        let in_cam1 = self.rig.cam1_from_cam0 * point;
-        let cams = [
-            (&self.rig.cam0, point.coords),
-            (&self.rig.cam1, in_cam1.coords),
-        ];
         change > 0.0
             && (0..2).all(|c| {
                 let (Some(q), Some(x)) = (wide[i].pixels[c], pixels[c][l.det[c]]) else {
                     return false;
                 };
-                let Some((_, jacobian)) = cams[c].0.project_with_jacobian(&cams[c].1) else {
+                let Some(largest) = self.dot_major_axis_px(&point, c) else {
                     return false;
                 };
-                let largest = singular_values(&jacobian).0 * p.dot_diameter_mm;
                 let like_its_dot = |det: usize| {
                     self.blobs[c].get(det).is_some_and(|b| {
                         let r = b.diameter_px / largest / last[c];
