@@ -1473,6 +1473,48 @@ fn a_piece_of_a_markers_last_blob_off_its_prediction_is_told() {
 }
 
 #[test]
+fn a_blob_grown_on_one_side_is_told_after_the_prediction_followed_it() {
+    // A marker last labeled on 14 px blobs, 1 px off its dot towards a mole it had begun
+    // to touch, and predicted 2.8 px off (the velocity carried the pull on): its dot and
+    // the mole make one 29.6 px streak, centred 6.4 px off the dot along it, only 3.6 px
+    // off the prediction (lip-press seed 7's M060). Off the last label by 5.4 px, the blob
+    // grew on one side; centred on the last label, it would not have.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(8);
+    let mut lab = labeler(&layout, &pts);
+    let mut rng = Rng::new(117);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    for f in 0..3usize {
+        let obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+        lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+    }
+    let k = (0..pts.len())
+        .find(|&k| lab.seen_before.as_ref().unwrap().markers[k].is_some())
+        .unwrap();
+    let mut pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
+    let dot = pr.pixels.map(Option::unwrap);
+    let along = |dx: f64| dot.map(|q| q + Vector2::new(dx, 0.0));
+    pr.pixels = along(2.8).map(Some);
+    let streak = BlobShape::of(&Detection {
+        centre_px: Point2::origin(),
+        area_px: 79,
+        roundness: 0.16,
+        contrast_dn: 35.0,
+        quality: 0.07,
+        diameter_px: 29.6,
+        axis_rad: 0.0,
+        streak: false,
+    });
+    lab.blobs = [vec![streak], vec![streak]];
+    let seen = lab.seen_before.as_mut().unwrap();
+    seen.marker_blobs_px[k] = Some([14.0, 14.0]);
+    seen.markers[k] = Some(along(1.0));
+    assert!(lab.grew_past_a_dot(k, &pr, [0, 0], along(6.4)));
+    lab.seen_before.as_mut().unwrap().markers[k] = Some(along(2.8));
+    assert!(!lab.grew_past_a_dot(k, &pr, [0, 0], along(6.4)));
+}
+
+#[test]
 fn a_dot_merged_with_something_at_its_side_is_not_labeled_at_the_blobs_centre() {
     // A tracked dot whose blob becomes 1.8 times as long for two frames (frames 20-21):
     // grown on one side (a lash or an eyelid's edge joining it), its centre 0.4 dots off
