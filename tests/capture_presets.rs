@@ -405,13 +405,13 @@ const WIPED_MOLES_SET_UPS: [(u64, usize); 3] = [(7, 40), (11, 90), (203, 60)];
 
 #[test]
 fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {
-    let failures = set_up_failures("wiped-moles", &WIPED_MOLES_SET_UPS);
+    let failures = set_up_failures("wiped-moles", &WIPED_MOLES_SET_UPS, 0.99);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
 /// Renders and replays set-ups (seed, frames) of `preset` and lists those with a wrong
 /// label or under 99 % labeled.
-fn set_up_failures(preset: &str, set_ups: &[(u64, usize)]) -> Vec<String> {
+fn set_up_failures(preset: &str, set_ups: &[(u64, usize)], min_share: f64) -> Vec<String> {
     let dir = tempfile::tempdir().unwrap();
     let mut failures = Vec::new();
     for &(seed, frames) in set_ups {
@@ -427,7 +427,7 @@ fn set_up_failures(preset: &str, set_ups: &[(u64, usize)]) -> Vec<String> {
             100.0 * share,
             f.wrong
         ));
-        if f.wrong > 0 || share < 0.99 {
+        if f.wrong > 0 || share < min_share {
             failures.push(format!(
                 "{preset} seed {seed}: {:.2} % labeled, {} wrong",
                 100.0 * share,
@@ -447,20 +447,34 @@ const LIP_PRESS_SET_UPS: [(u64, usize); 1] = [(2, 100)];
 
 #[test]
 fn a_lip_dot_moved_with_its_mole_is_not_followed_on_the_mole() {
-    let failures = set_up_failures("lip-press", &LIP_PRESS_SET_UPS);
+    let failures = set_up_failures("lip-press", &LIP_PRESS_SET_UPS, 0.99);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// A `lip-press` set-up whose lip dot, seen 80° from cam0, once was labeled between
+/// itself and the mole beside it for 11 frames, 6.4 px off: its blob touched the mole a
+/// frame early, pulling the label and the prediction after it, and then was one 30 px
+/// streak only 3.6 px off that prediction (seed 7, M060; see `Labeler::grew_past_a_dot`).
+/// Its labeled share is below the goal (another marker, M008, merged with a mole in cam1,
+/// is missed throughout): only wrong labels are counted.
+const LIP_PRESS_MERGED_SET_UPS: [(u64, usize); 1] = [(7, 30)];
+
+#[test]
+fn a_lip_dot_merged_with_its_mole_is_not_labeled_between_the_two() {
+    let failures = set_up_failures("lip-press", &LIP_PRESS_MERGED_SET_UPS, 0.0);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
 /// `lip-press` set-ups on which markers are still labeled on the wrong spot (run with
 /// `--ignored`; README, "Capture presets"): a dot seen nearly edge-on (about 80° from
 /// the cameras) beside a mole that looks as thin, labeled on the mole, or on the two
-/// merged, 5-9 px from the dot's place in the camera that sees it most edge-on (seeds 3,
-/// 4 and 7).
-const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 3] = [(3, 120), (4, 120), (7, 120)];
+/// merged, 5-9 px from the dot's place in the camera that sees it most edge-on (seeds 3
+/// and 4).
+const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 2] = [(3, 120), (4, 120)];
 
 #[test]
 #[ignore = "known wrong labels under lip presses (see LIP_PRESS_KNOWN_WRONG)"]
 fn moles_merged_with_edge_on_lip_dots_are_not_labeled() {
-    let failures = set_up_failures("lip-press", &LIP_PRESS_KNOWN_WRONG);
+    let failures = set_up_failures("lip-press", &LIP_PRESS_KNOWN_WRONG, 0.99);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
