@@ -469,9 +469,9 @@ fn a_lip_dot_merged_with_its_mole_is_not_labeled_between_the_two() {
 /// `--ignored`; README, "Capture presets"): a dot seen nearly edge-on (about 80° from
 /// the cameras) beside a mole that looks as thin, labeled on the mole, or on the two
 /// merged, 5-9 px from the dot's place in the camera that sees it most edge-on (seeds 3
-/// and 4); two forehead dots, each seen 81° from cam1 (not found there) beside a mole of
-/// a dot's size that both cameras see, labeled on the mole from their first sighting on,
-/// 3-7 px from the dot (seed 901, M009 and M018).
+/// and 4); a forehead dot seen 81° from cam1 (not found there) beside a mole of a dot's
+/// size that both cameras see, merged with it in cam0, labeled on the mole from its first
+/// sighting on, 6 px from the dot (seed 901, M009).
 const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 3] = [(3, 120), (4, 120), (901, 60)];
 
 #[test]
