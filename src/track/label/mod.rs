@@ -31,8 +31,10 @@
 //!    deviations of the residuals of confidently labeled markers, at least
 //!    [`LabelParams::max_reprojection_px`]) and land near the 3D
 //!    prediction. A marker in doubt in one camera is kept only when exactly one of its
-//!    candidate pairs passes both tests; otherwise it is dropped for the frame (a wrong
-//!    label is worse than a missing one).
+//!    candidate pairs passes both tests, and, at its first sighting, that pair leaves no
+//!    free blob of a dot's size nearer to its prediction in either camera (the dot,
+//!    unpaired where the other camera sees it edge-on, beside a mole both cameras see);
+//!    otherwise it is dropped for the frame (a wrong label is worse than a missing one).
 //! 4. The head pose of the frame is estimated by weighted Horn (stabilizing weights of
 //!    the layout, with outlier rejection) from these labels, all markers are predicted
 //!    again with it, and steps 2-3 run a second time with the tight gate: this absorbs

@@ -2386,14 +2386,11 @@ fn a_dot_one_camera_cannot_see_is_not_taken_on_the_mole_beside_it() {
         let mut obs = observe(&rig, &pose, &pts, &[], 0.1, 0, &mut rng);
         // Not found in cam1.
         let (dets, truth) = &mut obs[1];
-        let keep: Vec<bool> = truth
-            .iter()
-            .map(|t| t.is_none_or(|k| !edge_on.contains(&k)))
-            .collect();
-        let mut k = 0;
-        dets.retain(|_| (keep[k], k += 1).0);
-        let mut k = 0;
-        truth.retain(|_| (keep[k], k += 1).0);
+        (*dets, *truth) = dets
+            .drain(..)
+            .zip(truth.drain(..))
+            .filter(|(_, t)| t.is_none_or(|k| !edge_on.contains(&k)))
+            .unzip();
         for &m in &edge_on {
             // Beside the dot across the epipolar lines (the cameras are one above the
             // other): the dot in cam0 and the mole in cam1 are no pair.

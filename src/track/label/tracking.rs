@@ -498,13 +498,13 @@ impl Labeler {
     /// its centre off the prediction or off the last label along its axis by at least
     /// [`MERGED_SHIFT`] of the growth (and 2 px): a blob that touched the mole a frame
     /// early pulls the label and, through the velocity, the prediction after it towards
-    /// the mole (lip-press seed 7's M060: a 15 px dot became a 30 px streak 3.6 px off its
-    /// prediction, 5.3 px off its last label). Such a blob is the dot merged with something at its side (a
-    /// mole, a lash, an eyelid's edge; on wide-mixed seed 1 a dot 19 px long became a
-    /// 34 px blob for two frames, its centre 5 px off the dot's): its centre is not the
-    /// dot's, and the marker is labeled at the dot's lobe ([`Labeler::merged_dot`]) or
-    /// not at all. A blob that grew about its centre (a hair across it) is still centred
-    /// on the dot.
+    /// the mole (lip-press seed 7's M060: a 15 px dot became a 30 px streak 3.6 px off
+    /// its prediction, 5.3 px off its last label). Such a blob is the dot merged with
+    /// something at its side (a mole, a lash, an eyelid's edge; on wide-mixed seed 1 a
+    /// dot 19 px long became a 34 px blob for two frames, its centre 5 px off the dot's):
+    /// its centre is not the dot's, and the marker is labeled at the dot's lobe
+    /// ([`Labeler::merged_dot`]) or not at all. A blob that grew about its centre (a hair
+    /// across it) is still centred on the dot.
     pub(super) fn grew_past_a_dot(
         &self,
         i: usize,
