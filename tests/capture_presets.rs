@@ -410,7 +410,7 @@ fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {
 }
 
 /// Renders and replays set-ups (seed, frames) of `preset` and lists those with a wrong
-/// label or under 99 % labeled.
+/// label or under `min_share` of the detectable markers labeled (0: wrong labels only).
 fn set_up_failures(preset: &str, set_ups: &[(u64, usize)], min_share: f64) -> Vec<String> {
     let dir = tempfile::tempdir().unwrap();
     let mut failures = Vec::new();

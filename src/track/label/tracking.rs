@@ -467,10 +467,7 @@ impl Labeler {
     /// in camera `c` at the size ratio `hi` (its largest magnification through the lens,
     /// as in [`Labeler::dot_sized`]); None when the point does not project.
     pub(super) fn largest_dot_px(&self, point: &Point3<f64>, c: usize, hi: f64) -> Option<f64> {
-        let (cam, p) = self.in_camera(point, c);
-        let (_, j) = cam.project_with_jacobian(&p)?;
-        let (s1, _) = singular_values(&j);
-        Some(hi * self.params.dot_diameter_mm * s1 + 2.0)
+        Some(hi * self.dot_major_axis_px(point, c)? + 2.0)
     }
 
     /// Camera `c` and `point` (cam0 frame) in its frame.
