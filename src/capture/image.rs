@@ -35,7 +35,7 @@ pub const MAX_IMAGE_SIDE_PX: u32 = 16384;
 pub const MAX_IMAGE_BYTES: u64 = 1 << 30;
 
 /// An 8-bit grayscale image, row-major.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct GrayImage {
     /// Width, pixels.
     pub width: u32,
