@@ -1372,16 +1372,29 @@ impl Labeler {
         let mut assigned: [Vec<Option<(usize, bool)>>; 2] = [vec![None; m], vec![None; m]];
         for c in 0..2 {
             let dets = &pixels[c];
+            // The detections by column, so that a marker looks only at those in the band
+            // of columns its gate spans.
+            let mut by_column: Vec<(f64, usize)> = dets
+                .iter()
+                .enumerate()
+                .filter_map(|(a, d)| d.map(|d| (d.x, a)))
+                .collect();
+            by_column.sort_by(|x, y| x.0.total_cmp(&y.0));
             for (i, pr) in preds.iter().enumerate() {
                 let Some(q) = pr.pixels[c] else { continue };
-                for (a, d) in dets.iter().enumerate() {
-                    let Some(d) = d else { continue };
+                let first = by_column.partition_point(|&(x, _)| x < q.x - pr.gate_px);
+                for &(x, a) in &by_column[first..] {
+                    if x > q.x + pr.gate_px {
+                        break;
+                    }
+                    let Some(d) = dets[a] else { continue };
                     let e = (d - q).norm();
                     if e <= pr.gate_px {
                         candidates[c][i].push((a, e));
                     }
                 }
-                candidates[c][i].sort_by(|x, y| x.1.total_cmp(&y.1));
+                // Nearest first; detections equally near in the order they came.
+                candidates[c][i].sort_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
             }
             // Markers per detection (for column rivals).
             let mut by_det: Vec<Vec<(usize, f64)>> = vec![Vec::new(); dets.len()];
