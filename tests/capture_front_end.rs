@@ -173,12 +173,16 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
     // the shading at the face's edge were split out of their component), 92 spurious blobs
     // over 8 images (irises, nostrils, the mouth line: round dark blobs that are no marker;
     // labeling rejects them, tests/labeling.rs asserts zero wrong labels), centre RMS
-    // 0.24 px, 224 pairs of which none wrong, bundle RMS 0.20 mm. Pairing by the epipolar
+    // 0.24 px, 224 pairs of which none wrong, bundle RMS 0.20 mm. On 2026-12-06: recall
+    // 97.4 %, 123 spurious blobs, centre RMS 0.195 px, 210 pairs of which none wrong and 6
+    // with a spurious blob, bundle RMS 0.138 mm (before the large window ran at half
+    // resolution: 120 spurious blobs, 208 pairs, 4 with a spurious blob, the rest the
+    // same); the bound on spurious blobs leaves a tenth. Pairing by the epipolar
     // constraint alone cannot reject a pair of two markers on a shared epipolar line whose
     // true partners were both missed: labeling against the layout must.
     assert!(recall > 0.95, "recall {recall}");
     assert!(rms_px < 0.3, "centre RMS {rms_px} px");
-    assert!(spurious <= 120, "{spurious} spurious blobs");
+    assert!(spurious <= 135, "{spurious} spurious blobs");
     assert!(
         wrong_pairs * 50 <= pairs,
         "{wrong_pairs} wrong of {pairs} pairs"

@@ -1147,6 +1147,8 @@ struct Measuring<'a> {
 }
 
 impl<'a> Measuring<'a> {
+    /// Measuring in `image` with `params` of components found in `grid` (None: in the
+    /// image), none smaller than `min_px` image pixels; no diameter floor, anywhere.
     fn new(
         image: &'a GrayImage,
         params: &'a DetectParams,
@@ -1623,7 +1625,10 @@ fn second_moments(pixels: &[(usize, usize, u8)]) -> (f64, f64, f64) {
 
 /// Filters and measures one blob, a set of pixels of the grid of `measuring`, in the
 /// image; the reason when it fails a filter. A blob found at half resolution is measured
-/// on its candidate pixels in the image ([`full_resolution_pixels`]).
+/// on its blocks, and when that says it may be a large dot (at least
+/// [`BLOCKS_MIN_ROUNDNESS`] round and wider than [`Measuring::min_diameter_px`]), again on
+/// the largest connected part of its candidate pixels in the image
+/// ([`full_resolution_pixels`]).
 fn measure_blob(
     measuring: Measuring,
     pixels: &[(usize, usize, u8)],
