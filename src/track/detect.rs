@@ -2173,6 +2173,46 @@ mod tests {
     }
 
     #[test]
+    fn images_of_any_small_or_odd_size_are_detected_in_without_panic() {
+        // Both window scales (the large one at half resolution) on images down to a pixel,
+        // odd sides, whole and in windows reaching past the edges; a dark dot in the
+        // larger ones.
+        let params = DetectParams::default();
+        assert_eq!(params.window_scales().len(), 2);
+        let mut detector = MarkerDetector::new();
+        for (w, h) in [(1, 1), (1, 7), (2, 2), (3, 5), (7, 3), (31, 17), (45, 45)] {
+            let data = (0..w * h)
+                .map(|i| {
+                    let (x, y) = ((i % w) as f64, (i / w) as f64);
+                    let r = ((x - 0.5 * w as f64).powi(2) + (y - 0.5 * h as f64).powi(2)).sqrt();
+                    if r < 0.3 * w.min(h) as f64 { 40 } else { 200 }
+                })
+                .collect();
+            let image = GrayImage {
+                width: w as u32,
+                height: h as u32,
+                data,
+            };
+            let found = detector.detect(&image, &params);
+            let windows = [
+                (0, 0, 4, 4),
+                (w as u32 / 2, h as u32 / 2, w as u32 + 9, h as u32 + 9),
+            ];
+            let centres = [(0, 0, w as u32 + 1, h as u32 + 1)];
+            let near = detector.detect_in_windows_near(&image, &params, &windows, &centres);
+            for d in found.iter().chain(&near) {
+                assert!(
+                    d.centre_px.x.is_finite() && d.centre_px.y.is_finite(),
+                    "{d:?}"
+                );
+            }
+            if (w, h) == (45, 45) {
+                assert_eq!(found.len(), 1, "the dot in the 45 px image: {found:?}");
+            }
+        }
+    }
+
+    #[test]
     fn half_resolution_is_the_rounded_mean_of_each_block() {
         let image = GrayImage {
             width: 5,
