@@ -119,8 +119,10 @@ impl Blob {
                 self.semi_neg[k]
             };
             let a = q.abs() / s;
-            f += a.powf(n);
-            df += n * a.powf(n - 1.0) * q.signum() * d[k] / s;
+            // One power per axis: `aⁿ = aⁿ⁻¹·a` (n ≥ 1).
+            let below = a.powf(n - 1.0);
+            f += below * a;
+            df += n * below * q.signum() * d[k] / s;
         }
         (f, df)
     }
