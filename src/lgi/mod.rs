@@ -656,12 +656,19 @@ impl LgiSolver {
                 out.push(Arc::clone(w));
                 continue;
             }
-            let mut vertices: Vec<u32> = cluster
-                .iter()
-                .flat_map(|&m| supports[m as usize].iter().map(|e| e.0))
+            // The vertices with weight on the cluster's markers, ascending: marked, then
+            // listed (sorting the supports' tens of thousands of entries cost more).
+            let mut marked = vec![false; index.neutral.len()];
+            for &m in &cluster {
+                for &(v, _) in supports[m as usize] {
+                    if let Some(k) = marked.get_mut(v as usize) {
+                        *k = true;
+                    }
+                }
+            }
+            let vertices: Vec<u32> = (0..marked.len() as u32)
+                .filter(|&v| marked[v as usize])
                 .collect();
-            vertices.sort_unstable();
-            vertices.dedup();
             let mut present_c = vec![true; present.len()];
             for &m in &cluster {
                 present_c[m as usize] = false;
