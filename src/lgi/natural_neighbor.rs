@@ -520,14 +520,21 @@ fn weights_at(
         // Degenerate diagram: fall through to the hull (segment) projection below.
     } else if tri.num_vertices() >= 3 {
         let q = spade::Point2::new(p.x, p.y);
-        nn.get_weights(q, buf);
+        // Located first: a point outside the hull (Sibson weights have none there) goes
+        // straight to the hull below, without the natural-neighbour query's own locating.
+        let at = tri.locate(q);
+        if !matches!(at, spade::PositionInTriangulation::OutsideOfConvexHull(_)) {
+            nn.get_weights(q, buf);
+        } else {
+            buf.clear();
+        }
         if !buf.is_empty() && buf.iter().all(|e| e.1.is_finite()) {
             return normalized(buf.iter().map(|&(h, w)| (marker(h), w)).collect());
         }
         // Numerically degenerate insertion cell (a point on a hull edge up to rounding,
         // cocircular sites): the Delaunay triangle's linear weights, which agree with
         // Sibson's on the hull edges.
-        if let spade::PositionInTriangulation::OnFace(f) = tri.locate(q) {
+        if let spade::PositionInTriangulation::OnFace(f) = at {
             let face = tri.face(f);
             let w = face.barycentric_interpolation(q);
             if w.iter().all(|x| x.is_finite()) {
