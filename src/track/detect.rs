@@ -1659,12 +1659,14 @@ fn measure_blob(
         ..
     } = measuring;
     let Some(half) = grid else {
-        return measure_image_blob(image, pixels, params, 1);
+        return measure_image_blob(image, pixels, params, 1, Centre::Weighted);
     };
     // Measured on its blocks first: a blob that fails there, or that cannot be a large
     // dot, is told so at a quarter of the cost (the large scale keeps only round blobs
-    // wider than the small scale handles, see `MarkerDetector::detect_two_scales`).
-    let blocks = measure_image_blob(image, pixels, params, 2)?;
+    // wider than the small scale handles, see `MarkerDetector::detect_two_scales`). No
+    // detection keeps the blocks' centre (a blob that cannot be a large dot is dropped
+    // with it, one that may be is measured again below): it is measured for its shape.
+    let blocks = measure_image_blob(image, pixels, params, 2, Centre::IfItDecides)?;
     if blocks.roundness < BLOCKS_MIN_ROUNDNESS || blocks.diameter_px <= measuring.min_diameter_px {
         return Ok(blocks);
     }
@@ -1680,7 +1682,7 @@ fn measure_blob(
     if largest.len() < params.min_area_px.max(1) {
         return Err(RejectReason::LowContrast);
     }
-    measure_image_blob(image, &largest, params, 1)
+    measure_image_blob(image, &largest, params, 1, Centre::Weighted)
 }
 
 /// The image pixels of a blob found at half resolution (pixels `(x, y, level)` of `half`,
@@ -1717,13 +1719,29 @@ fn full_resolution_pixels(
     full
 }
 
+/// What [`measure_image_blob`] gives as a blob's centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Centre {
+    /// The weighted centroid over the blob and its rim (see [`measure_image_blob`]).
+    Weighted,
+    /// The weighted centroid only when it can decide whether the blob is a dot (it may
+    /// find no weight, or the image's edge too close): otherwise the mean of the blob's
+    /// pixels, for a blob measured for its shape, contrast and verdict only. The same
+    /// verdict either way: the darkest pixel, `peak` above the background, weighs
+    /// `0.9·peak > 0` against a constant background, and a centroid inside the box the
+    /// weights cover is at least that box's distance from the image's edge.
+    IfItDecides,
+}
+
 /// [`measure_blob`] of a set of pixels of a grid of side `s` (1: image pixels; 2: the
-/// blocks of [`half_resolution`], each measured as its four image pixels).
+/// blocks of [`half_resolution`], each measured as its four image pixels), its centre as
+/// `centre` asks.
 fn measure_image_blob(
     image: &GrayImage,
     pixels: &[(usize, usize, u8)],
     params: &DetectParams,
     s: usize,
+    centre: Centre,
 ) -> Result<Detection, RejectReason> {
     let (w, h) = (image.width as usize, image.height as usize);
     // A block of side s adds its own s²/12 per axis, as a pixel adds 1/12.
@@ -1755,20 +1773,23 @@ fn measure_image_blob(
     let (rx1, ry1) = ((bx1 + g).min(w - 1), (by1 + g).min(h - 1));
     // Its median, from a histogram of its levels.
     let mut histogram = [0u32; 256];
+    let mut count = 0u32;
     for y in ry0..=ry1 {
         let row = &image.data[y * w..(y + 1) * w];
         if y == ry0 || y == ry1 {
             row[rx0..=rx1]
                 .iter()
                 .for_each(|&v| histogram[usize::from(v)] += 1);
+            count += (rx1 - rx0 + 1) as u32;
         } else {
             histogram[usize::from(row[rx0])] += 1;
+            count += 1;
             if rx1 != rx0 {
                 histogram[usize::from(row[rx1])] += 1;
+                count += 1;
             }
         }
     }
-    let count: u32 = histogram.iter().sum();
     let mut below = 0;
     let Some(median) = histogram.iter().position(|&n| {
         below += n;
@@ -1805,10 +1826,38 @@ fn measure_image_blob(
     // or for a thin blob a plane fitted to the ring (a constant background would weigh the
     // darker side of shaded skin around a thin, foreshortened dot, and pull its centre
     // there).
-    let fit = (roundness < THIN_BLOB_ROUNDNESS)
-        .then(|| background_plane(image, (rx0, ry0, rx1, ry1), background));
+    let thin = roundness < THIN_BLOB_ROUNDNESS;
     let (cx0, cy0) = (bx0.saturating_sub(RIM_PX), by0.saturating_sub(RIM_PX));
     let (cx1, cy1) = ((bx1 + RIM_PX).min(w - 1), (by1 + RIM_PX).min(h - 1));
+    let diameter = 4.0 * l1.sqrt();
+    let quality = (roundness * (peak / (peak + 40.0))).clamp(0.0, 1.0);
+    let detection = |centre_px: Point2<f64>| Detection {
+        centre_px,
+        area_px: pixels.len() * s * s,
+        roundness,
+        contrast_dn: peak,
+        quality,
+        diameter_px: diameter,
+        axis_rad,
+        streak: false,
+    };
+    let box_room = (cx0 as f64 + 0.5)
+        .min(cy0 as f64 + 0.5)
+        .min(w as f64 - 0.5 - cx1 as f64)
+        .min(h as f64 - 0.5 - cy1 as f64);
+    if centre == Centre::IfItDecides && !thin && peak > 0.0 && box_room >= 0.5 * diameter {
+        let n = pixels.len() as f64;
+        let (sx, sy) = pixels.iter().fold((0.0, 0.0), |(a, b), &(x, y, _)| {
+            (a + x as f64, b + y as f64)
+        });
+        // The centre of the mean grid pixel, in image pixels.
+        let half = 0.5 * (s - 1) as f64;
+        return Ok(detection(Point2::new(
+            s as f64 * sx / n + half,
+            s as f64 * sy / n + half,
+        )));
+    }
+    let fit = thin.then(|| background_plane(image, (rx0, ry0, rx1, ry1), background));
     // Only pixels near the blob's own count: per row, the columns of the blob's pixels in
     // the rows within `RIM_PX`, grown by `RIM_PX` (its antialiased rim), not whatever else
     // is dark in its box (the black beyond the face's silhouette beside a dot seen
@@ -1827,17 +1876,14 @@ fn measure_image_blob(
         Some(plane) => weighted_sums(image, &columns, near, |x, y, v| {
             (sign * (plane(x, y) - f64::from(v)) - floor).max(0.0)
         }),
-        None => {
-            // The weight of each level against the constant background, looked up.
-            let weights: [f64; 256] =
-                std::array::from_fn(|v| (sign * (background - v as f64) - floor).max(0.0));
-            weighted_sums(image, &columns, near, |_, _, v| weights[usize::from(v)])
-        }
+        None => weighted_sums(image, &columns, near, |_, _, v| {
+            (sign * (background - f64::from(v)) - floor).max(0.0)
+        }),
     };
     if sw <= 0.0 {
         return Err(RejectReason::LowContrast);
     }
-    let (centre, diameter) = (Point2::new(swx / sw, swy / sw), 4.0 * l1.sqrt());
+    let centre = Point2::new(swx / sw, swy / sw);
     // A dot cut by the image's edge: its centroid is pulled inwards.
     let room = (centre.x + 0.5)
         .min(centre.y + 0.5)
@@ -1846,17 +1892,7 @@ fn measure_image_blob(
     if edge_cut_bias_px(room, 0.5 * diameter) > params.max_edge_bias_px {
         return Err(RejectReason::AtImageEdge);
     }
-    let quality = roundness * (peak / (peak + 40.0));
-    Ok(Detection {
-        centre_px: centre,
-        area_px: pixels.len() * s * s,
-        roundness,
-        contrast_dn: peak,
-        quality: quality.clamp(0.0, 1.0),
-        diameter_px: diameter,
-        axis_rad,
-        streak: false,
-    })
+    Ok(detection(centre))
 }
 
 /// The sums `Σw`, `Σw·x` and `Σw·y` of the weights `weight(x, y, level)` over the pixels
@@ -2274,6 +2310,68 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_blob_measured_for_its_shape_gets_the_verdict_and_shape_of_a_weighted_one() {
+        // Round, oblique, thin and edge-cut dots, alone and side by side, at both grids.
+        let ellipses = [
+            (30.3, 30.7, 8.0, 7.5, 0.2),
+            (70.0, 40.2, 9.0, 3.0, 0.7),
+            (110.6, 60.0, 10.0, 1.6, -0.4),
+            (2.5, 80.0, 7.0, 7.0, 0.0),
+            (150.0, 117.0, 6.0, 5.0, 0.3),
+            (160.0, 30.0, 4.0, 3.5, 0.0),
+            (168.0, 30.0, 4.0, 3.5, 0.0),
+            (197.0, 5.0, 12.0, 9.0, 1.0),
+        ];
+        let image = image_with_ellipses(&ellipses);
+        let mut half = GrayImage::default();
+        half_resolution(&image, &mut half, (0, 0, 100, 60));
+        let params = DetectParams::default();
+        let mut compared = 0;
+        for (grid, s) in [(&image, 1), (&half, 2)] {
+            // Each grid's pixels darker than their row's lit skin, in connected parts.
+            let (w, h) = (grid.width as usize, grid.height as usize);
+            let dark: Vec<(usize, usize, u8)> = (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .filter_map(|(x, y)| {
+                    let skin = 90.0 + 100.0 * (s * x) as f64 / 200.0;
+                    let v = f64::from(grid.data[y * w + x]);
+                    (skin - v >= 8.0).then(|| (x, y, (skin - v).min(255.0) as u8))
+                })
+                .collect();
+            for_each_part(&dark, |part| {
+                let weighted = measure_image_blob(&image, part, &params, s, Centre::Weighted);
+                let shaped = measure_image_blob(&image, part, &params, s, Centre::IfItDecides);
+                match (&weighted, &shaped) {
+                    (Ok(a), Ok(b)) => {
+                        assert_eq!(
+                            (
+                                a.area_px,
+                                a.roundness,
+                                a.diameter_px,
+                                a.contrast_dn,
+                                a.axis_rad
+                            ),
+                            (
+                                b.area_px,
+                                b.roundness,
+                                b.diameter_px,
+                                b.contrast_dn,
+                                b.axis_rad
+                            )
+                        );
+                        // The centre of a blob measured for its shape is its pixels' mean.
+                        assert!((a.centre_px - b.centre_px).norm() < 1.0 * s as f64 + 1.0);
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a, b),
+                    _ => panic!("verdicts differ: {weighted:?} against {shaped:?}"),
+                }
+                compared += 1;
+            });
+        }
+        assert!(compared >= 12, "{compared} blobs compared");
     }
 
     #[test]
