@@ -314,6 +314,42 @@ fn capture_throughput() {
 /// `helmcap detect` on a frame of a session: both annotated images and a CSV whose labeled
 /// detections lie on their own markers' dots, at least 95 % of the markers detectable in
 /// both cameras labeled in both; `--print-profile` with the session prints the profile the session names.
+/// A replay that labels nothing says so, and what to check, even on a take too short for
+/// the warning logged while running and under `--quiet`; one that labels does not.
+#[test]
+fn a_replay_that_labels_nothing_says_what_to_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("s");
+    synth(&session, 4, &[]);
+    // Bright dots looked for on dark ones: nothing is detected, nothing labeled.
+    let profile = dir.path().join("bright.toml");
+    std::fs::write(&profile, "dot_diameter_mm = 2.4\npolarity = \"bright\"\n").unwrap();
+    let replay = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "replay",
+            session.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--no-solve",
+            "--quiet",
+        ];
+        args.extend_from_slice(extra);
+        let o = helmcap(&args);
+        assert!(o.status.success(), "{o:?}");
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let stdout = replay("wrong", &["--profile", profile.to_str().unwrap()]);
+    assert!(
+        stdout.contains("warning: no marker labeled in 4 frames")
+            && stdout.contains("capture profile")
+            && stdout.contains("helmcap detect"),
+        "{stdout}"
+    );
+    let stdout = replay("right", &[]);
+    assert!(!stdout.contains("no marker labeled"), "{stdout}");
+}
+
 #[test]
 fn detect_labels_a_session_frame_and_prints_its_profile() {
     let dir = tempfile::tempdir().unwrap();

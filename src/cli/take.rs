@@ -144,6 +144,17 @@ pub fn print_summary(m: &Metrics, outputs: &[PathBuf]) {
         m.labeling.dropped,
         m.labeling.reacquired
     );
+    if m.frames_out > 0 && m.labeling.markers > 0 && m.labeling.observed == 0 {
+        // Said at the end even of a take too short for the warning logged while running
+        // (`NO_LABEL_WARNING_SECS`), and under `--quiet`.
+        println!(
+            "warning: no marker labeled in {} frames: are the cameras swapped or not the \
+             calibration's, or the marker layout (--markers) or the capture profile (dot size, \
+             polarity, colour) not the footage's? `helmcap detect` on one frame shows what is \
+             found",
+            m.frames_out
+        );
+    }
     let realtime = if m.source_fps > 0.0 {
         format!(
             " ({:.2}× real time at {} fps)",

@@ -484,7 +484,8 @@ impl MetricsCollector {
                     w.nothing_labeled_at_start = true;
                     tracing::warn!(
                         "no marker labeled in the first {NO_LABEL_WARNING_SECS} s: are the \
-                         cameras swapped, the same camera twice, or not the calibration's?"
+                         cameras swapped, the same camera twice, or not the calibration's, or \
+                         the marker layout or the capture profile not the footage's?"
                     );
                 }
             }
