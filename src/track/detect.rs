@@ -2362,7 +2362,8 @@ mod tests {
                                 b.axis_rad
                             )
                         );
-                        // The centre of a blob measured for its shape is its pixels' mean.
+                        // The centre of a blob measured for its shape is its pixels' mean,
+                        // near its weighted centroid.
                         assert!((a.centre_px - b.centre_px).norm() < 1.0 * s as f64 + 1.0);
                     }
                     (Err(a), Err(b)) => assert_eq!(a, b),

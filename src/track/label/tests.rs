@@ -1008,7 +1008,7 @@ fn a_worn_dots_centres_may_disagree_more_than_a_dots() {
     // is at most what the labeler allows). A worn dot is taken up to twice a dot's gate
     // and that (k = 1.4, smears 1.6 times a dot's length), not beyond (k = 2.4, smears 1.4
     // times a dot's length, so that each centre stays well within the worn tolerance of
-    // where its neighbours put it: dots over 12.5 px across, the face 110 mm away, since
+    // where its neighbours put it: dots over 12.5 px across, the face 140 mm away, since
     // the tolerance grows with a dot's size and a gate does not).
     // The gate itself follows the dots' centres, not the smears': with a third of the
     // markers smeared, 1.4 gates off, the robust scale of the residuals is the same as with
