@@ -311,9 +311,6 @@ fn capture_throughput() {
     );
 }
 
-/// `helmcap detect` on a frame of a session: both annotated images and a CSV whose labeled
-/// detections lie on their own markers' dots, at least 95 % of the markers detectable in
-/// both cameras labeled in both; `--print-profile` with the session prints the profile the session names.
 /// A replay that labels nothing says so, and what to check, even on a take too short for
 /// the warning logged while running and under `--quiet`; one that labels does not.
 #[test]
@@ -350,6 +347,9 @@ fn a_replay_that_labels_nothing_says_what_to_check() {
     assert!(!stdout.contains("no marker labeled"), "{stdout}");
 }
 
+/// `helmcap detect` on a frame of a session: both annotated images and a CSV whose labeled
+/// detections lie on their own markers' dots, at least 95 % of the markers detectable in
+/// both cameras labeled in both; `--print-profile` with the session prints the profile the session names.
 #[test]
 fn detect_labels_a_session_frame_and_prints_its_profile() {
     let dir = tempfile::tempdir().unwrap();
