@@ -910,6 +910,49 @@ fn filled_ellipse_area(d: &Detection) -> usize {
     (0.95 * std::f64::consts::FRAC_PI_4 * d.diameter_px * d.diameter_px * d.roundness) as usize
 }
 
+/// Turns each camera's detection of the markers in `smeared` (of `obs`, seen at `pts` under
+/// `pose`) into a smear along the skin's direction `along(k)` (head frame): `length` times
+/// the dot's diameter, `roundness`, filling its ellipse, centred `offset(c, k, centre,
+/// epipolar)` pixels from the dot's projection `centre` (`epipolar`: the unit direction of
+/// camera `c`'s epipolar line there). Each camera's smears `(marker, centre)`.
+#[allow(clippy::too_many_arguments)]
+fn smear_detections(
+    rig: &StereoRig,
+    pose: &Isometry3<f64>,
+    pts: &[Point3<f64>],
+    obs: &mut [(Vec<Detection>, Vec<Option<usize>>); 2],
+    smeared: &[usize],
+    along: impl Fn(usize) -> Vector3<f64>,
+    (length, roundness): (f64, f64),
+    offset: impl Fn(usize, usize, Vector2<f64>) -> Vector2<f64>,
+) -> [Vec<(usize, Point2<f64>)>; 2] {
+    let cam1 = cam1_from_head(rig, pose);
+    // The baseline in the head frame: a point moved along it stays in its epipolar plane.
+    let baseline =
+        pose.rotation.inverse() * (rig.cam1_from_cam0.inverse() * Point3::origin()).coords;
+    let mut centres = [Vec::new(), Vec::new()];
+    for (c, cam_from_head) in [(0, *pose), (1, cam1)] {
+        let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+        let project = |p: Point3<f64>| cam.project(&(cam_from_head * p).coords).unwrap();
+        let (dets, truth) = &mut obs[c];
+        for (d, truth) in dets.iter_mut().zip(truth.iter()) {
+            let Some(k) = truth.filter(|k| smeared.contains(k)) else {
+                continue;
+            };
+            let centre = project(pts[k]);
+            let axis = project(pts[k] + along(k)) - centre;
+            let epipolar = (project(pts[k] + baseline.normalize()) - centre).normalize();
+            d.centre_px = centre + offset(c, k, epipolar);
+            d.axis_rad = axis.y.atan2(axis.x);
+            d.diameter_px *= length;
+            d.roundness = roundness;
+            d.area_px = filled_ellipse_area(d);
+            centres[c].push((k, d.centre_px));
+        }
+    }
+    centres
+}
+
 #[test]
 fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
     // Some dots are smeared for the whole take: a blob twice a dot's length, roundness
@@ -1112,7 +1155,6 @@ fn a_smear_is_not_read_as_a_dot_merged_with_a_mole() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(9);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let smeared = [4, 12, 26, 38, 55];
     let along = |k: usize| normal_at(&pts[k]).cross(&Vector3::x()).normalize();
     let mut lab = labeler_with_normals(&layout, &pts, true);
@@ -1124,24 +1166,16 @@ fn a_smear_is_not_read_as_a_dot_merged_with_a_mole() {
             moved[k] += along(k) * (0.05 * f.saturating_sub(5) as f64).min(0.5);
         }
         let mut obs = observe(&rig, &pose, &moved, &[], 0.1, 0, &mut rng);
-        let mut centres = [Vec::new(), Vec::new()];
-        for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-            let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-            for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
-                let Some(k) = truth.filter(|k| smeared.contains(k)) else {
-                    continue;
-                };
-                let project = |p: Point3<f64>| cam.project(&(cam_from_head * p).coords).unwrap();
-                let centre = project(moved[k]);
-                let axis = project(moved[k] + along(k)) - centre;
-                d.centre_px = centre;
-                d.axis_rad = axis.y.atan2(axis.x);
-                d.diameter_px *= 1.5;
-                d.roundness = 0.4;
-                d.area_px = filled_ellipse_area(d);
-                centres[c].push((k, centre));
-            }
-        }
+        let centres = smear_detections(
+            &rig,
+            &pose,
+            &moved,
+            &mut obs,
+            &smeared,
+            along,
+            (1.5, 0.4),
+            |_, _, _| Vector2::zeros(),
+        );
         let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
         assert_eq!(count(&out, &truth).1, 0, "frame {f}");
@@ -1180,12 +1214,8 @@ fn a_long_smear_whose_centres_disagree_across_the_cameras_is_labeled_as_worn() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(9);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let smeared = [4, 12, 26, 38, 55];
     let along = |k: usize| normal_at(&pts[k]).cross(&Vector3::x()).normalize();
-    // The baseline in the head frame: a point moved along it stays in its epipolar plane.
-    let baseline =
-        pose.rotation.inverse() * (rig.cam1_from_cam0.inverse() * Point3::origin()).coords;
     let run = |length: f64| -> (usize, usize) {
         let mut lab = labeler_with_normals(&layout, &pts, true);
         let mut rng = Rng::new(117);
@@ -1193,26 +1223,20 @@ fn a_long_smear_whose_centres_disagree_across_the_cameras_is_labeled_as_worn() {
         for f in 0..30usize {
             let mut obs = observe(&rig, &pose, &pts, &[], 0.1, 0, &mut rng);
             let truth = [obs[0].1.clone(), obs[1].1.clone()];
-            for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-                let project = |p: Point3<f64>| cam.project(&(cam_from_head * p).coords).unwrap();
-                for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
-                    let Some(k) = truth.filter(|k| smeared.contains(k)) else {
-                        continue;
-                    };
-                    let centre = project(pts[k]);
-                    let axis = project(pts[k] + along(k)) - centre;
-                    let epipolar = (project(pts[k] + baseline.normalize()) - centre).normalize();
-                    let across = Vector2::new(-epipolar.y, epipolar.x);
-                    // Half the disagreement in each camera, opposite ways.
+            // Half the disagreement in each camera, opposite ways, across the epipolar line.
+            smear_detections(
+                &rig,
+                &pose,
+                &pts,
+                &mut obs,
+                &smeared,
+                along,
+                (length, 0.3),
+                |c, _, epipolar| {
                     let sign = if c == 0 { 1.0 } else { -1.0 };
-                    d.centre_px = centre + across * (1.5 * sign);
-                    d.axis_rad = axis.y.atan2(axis.x);
-                    d.diameter_px *= length;
-                    d.roundness = 0.3;
-                    d.area_px = filled_ellipse_area(d);
-                }
-            }
+                    Vector2::new(-epipolar.y, epipolar.x) * (1.5 * sign)
+                },
+            );
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
             assert_eq!(count(&out, &truth).1, 0, "frame {f}");
             for &k in &smeared {
