@@ -404,9 +404,9 @@ impl NaturalNeighborWeights {
     /// outside the old hull and inside the new lies in a triangle at the added marker,
     /// so in its circumcircle (on cluttered, an added marker on the hull had every vertex
     /// queried again in 42 of the 99 updates of a 120-frame replay, 88 % of the queries).
-    /// A stream's missing
-    /// markers change by a few a frame while most of them stay hidden, and their cluster
-    /// (one large one on a helmet rig, which does not see half the face) changes with them.
+    /// A stream's missing markers change by a few a frame while most of them stay hidden,
+    /// and their cluster (one large one on a helmet rig, which does not see half the face)
+    /// changes with them.
     ///
     /// # Errors
     /// [`NaturalNeighborError::NoMarkers`] when no marker is present.
