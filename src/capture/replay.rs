@@ -513,12 +513,13 @@ impl Replay {
             Media::Images => {
                 let root = &self.info.root;
                 let cameras = &self.info.cameras;
-                // The two images decode side by side: decoding is a large part of a
-                // frame's cost, and the replay source is one stage thread.
-                let (a, b) = rayon::join(
-                    || load_image(root, &cameras[0], index, rig, conversion),
-                    || load_image(root, &cameras[1], index, rig, conversion),
-                );
+                // One after the other, on the caller's thread: in a pipeline that is
+                // the source's thread, which reads ahead at a lower priority than the
+                // track stage and so decodes while the cores would otherwise idle (see
+                // `pipeline::priority`); side by side in the shared thread pool the
+                // decoding took the cores from the detection instead.
+                let a = load_image(root, &cameras[0], index, rig, conversion);
+                let b = load_image(root, &cameras[1], index, rig, conversion);
                 (
                     a,
                     b,

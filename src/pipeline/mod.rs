@@ -12,7 +12,9 @@
 //! records its time; every stage between the source and the sinks runs the same loop
 //! (receive, time the work, record a failure as the take's error, send on). Detection of the two cameras runs in parallel (`rayon::join`) inside
 //! the track stage, which also feeds the labeler's predicted regions of interest back to
-//! the detector for the next frame (same thread: no race, no stale region).
+//! the detector for the next frame (same thread: no race, no stale region). In a replay
+//! the other stages run at lower priorities than the track stage, the one that sets the
+//! pace, so that they fill the cores it leaves idle ([`priority`]).
 //!
 //! # Ordering and backpressure
 //! Frames stay in source order (every stage is one thread, every channel FIFO). A replay
@@ -36,6 +38,7 @@
 mod config;
 pub mod frame;
 pub mod metrics;
+mod priority;
 mod run;
 pub mod sink;
 pub mod sources;

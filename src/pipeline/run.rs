@@ -14,6 +14,7 @@ use super::config::{
 };
 use super::frame::{BundleStatus, FrameResult, LabelCounts, MarkerResult, Stage};
 use super::metrics::{Metrics, MetricsCollector};
+use super::priority::{lower_this_thread, replay_nice_step};
 use super::sink::{SessionMeta, Sink};
 use super::truth::GroundTruth;
 use crate::align::{PoseSource, Stabilizer};
@@ -52,13 +53,21 @@ fn stage_err(stage: Stage, frame: Option<FrameIndex>, message: impl Into<String>
     }
 }
 
+/// Starts the thread of `stage`, `nice_step` nice levels below the process's priority
+/// (see [`super::priority`]).
 fn spawn<T: Send + 'static>(
     stage: Stage,
+    nice_step: i32,
     f: impl FnOnce() -> Result<T, PipelineError> + Send + 'static,
 ) -> Result<JoinHandle<Result<T, PipelineError>>, PipelineError> {
     std::thread::Builder::new()
         .name(format!("helmcap:{}", stage.name()))
-        .spawn(f)
+        .spawn(move || {
+            if let Err(e) = lower_this_thread(nice_step) {
+                tracing::debug!("helmcap:{} keeps its priority: {e}", stage.name());
+            }
+            f()
+        })
         .map_err(|e| {
             PipelineError::Thread(format!("helmcap:{} could not start: {e}", stage.name()))
         })
@@ -77,13 +86,14 @@ fn spawn<T: Send + 'static>(
 /// [`PipelineError::Thread`] when the thread cannot start.
 fn spawn_stage(
     stage: Stage,
+    nice_step: i32,
     input: Receiver<Box<FrameResult>>,
     output: Sender<Box<FrameResult>>,
     errors: &ErrorSlot,
     mut work: impl FnMut(&mut FrameResult) -> Result<bool, PipelineError> + Send + 'static,
 ) -> Result<(Stage, JoinHandle<Result<(), PipelineError>>), PipelineError> {
     let errors = errors.clone();
-    let handle = spawn(stage, move || {
+    let handle = spawn(stage, nice_step, move || {
         for mut f in input {
             let t = Instant::now();
             if work(&mut f).map_err(|e| record(&errors, e))? {
@@ -155,6 +165,7 @@ pub fn run(
             ChannelConfig {
                 capacity: channel_capacity,
                 live_entry_capacity,
+                replay_entry_capacity,
             },
         take:
             TakeInfo {
@@ -209,6 +220,8 @@ pub fn run(
     let capacity = channel_capacity.max(1);
     let fps = source.fps();
     let live = source.is_live();
+    // A replay runs its stages behind the track stage; a live take all alike.
+    let nice_step = |stage: Stage| if live { 0 } else { replay_nice_step(stage) };
     let meta = SessionMeta {
         name,
         fps,
@@ -243,7 +256,7 @@ pub fn run(
     let entry_capacity = if live {
         live_entry_capacity.clamp(1, capacity)
     } else {
-        capacity
+        replay_entry_capacity.clamp(capacity, crate::limits::MAX_QUEUE_FRAMES.max(capacity))
     };
     let (to_track, track_in) = bounded::<Box<FrameResult>>(entry_capacity);
     let (to_stabilize, stabilize_in) = bounded::<Box<FrameResult>>(capacity);
@@ -260,7 +273,7 @@ pub fn run(
             let errors = errors.clone();
             handles.push((
                 Stage::Source,
-                spawn(Stage::Source, move || {
+                spawn(Stage::Source, nice_step(Stage::Source), move || {
                     source_stage(
                         source.as_mut(),
                         live,
@@ -278,6 +291,7 @@ pub fn run(
         let mut tracker = StereoTracker::new(labeler, detect);
         handles.push(spawn_stage(
             Stage::Track,
+            nice_step(Stage::Track),
             track_in,
             to_stabilize,
             &errors,
@@ -296,6 +310,7 @@ pub fn run(
         let mut stabilizer = stabilizer;
         handles.push(spawn_stage(
             Stage::Stabilize,
+            nice_step(Stage::Stabilize),
             stabilize_in,
             to_solve,
             &errors,
@@ -316,6 +331,7 @@ pub fn run(
         let (solve_out, mut tail) = bounded::<Box<FrameResult>>(capacity);
         handles.push(spawn_stage(
             Stage::Solve,
+            nice_step(Stage::Solve),
             solve_in,
             solve_out,
             &errors,
@@ -345,6 +361,7 @@ pub fn run(
             let (enhance_out, next) = bounded::<Box<FrameResult>>(capacity);
             handles.push(spawn_stage(
                 Stage::Enhance,
+                nice_step(Stage::Enhance),
                 std::mem::replace(&mut tail, next),
                 enhance_out,
                 &errors,
@@ -368,6 +385,7 @@ pub fn run(
             let (rig_out, next) = bounded::<Box<FrameResult>>(capacity);
             handles.push(spawn_stage(
                 Stage::Rig,
+                nice_step(Stage::Rig),
                 std::mem::replace(&mut tail, next),
                 rig_out,
                 &errors,
@@ -396,7 +414,7 @@ pub fn run(
             let errors = errors.clone();
             let counters = counters.clone();
             let stop = stop.clone();
-            let handle = spawn(Stage::Sinks, move || {
+            let handle = spawn(Stage::Sinks, nice_step(Stage::Sinks), move || {
                 let r = sink_stage(
                     &mut sinks,
                     &sinks_in,
