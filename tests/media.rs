@@ -302,8 +302,8 @@ fn video_session_replays_like_the_png_session_and_ingests_back() {
     assert_eq!(reader.size(), (1280, 1024));
     let f3 = reader.read_at(3).unwrap();
     let want = read_gray(&png.join("cam0/000003.png"), GrayConversion::Luma).unwrap();
-    assert_eq!(f3.to_gray(GrayConversion::Luma), want);
     assert_eq!(f3.timestamp_ns, 50_000_000);
+    assert_eq!(f3.into_gray(GrayConversion::Luma), want);
 
     let replayed: Vec<_> = Replay::open(&video, ReplayParams::default())
         .unwrap()

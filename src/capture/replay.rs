@@ -533,17 +533,16 @@ impl Replay {
             } => {
                 let [r0, r1] = &mut **readers;
                 let path1 = r1.path().to_path_buf();
-                let (a, b) = rayon::join(
-                    || r0.read_at(index.as_usize()),
-                    || r1.read_at(index.as_usize()),
-                );
+                // One after the other, as the images above.
+                let a = r0.read_at(index.as_usize());
+                let b = r1.read_at(index.as_usize());
                 let timestamp = match (&a, *container_timestamps) {
                     (Ok(f), true) => Some(f.timestamp_ns),
                     _ => None,
                 };
                 let gray = |r: &VideoReader, f: Result<super::video::VideoFrame, CaptureError>| {
                     f.and_then(|f| {
-                        check_size(index, r.path().to_path_buf(), f.to_gray(conversion), rig)
+                        check_size(index, r.path().to_path_buf(), f.into_gray(conversion), rig)
                     })
                 };
                 (gray(r0, a), gray(r1, b), path1, timestamp)
