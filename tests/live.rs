@@ -15,6 +15,8 @@ use helmcap::capture::syncbox::format_line;
 use helmcap::capture::{Replay, ReplayParams};
 use helmcap::timecode::Timecode;
 
+mod common;
+
 fn helmcap() -> Command {
     Command::new(env!("CARGO_BIN_EXE_helmcap"))
 }
@@ -500,4 +502,46 @@ fn live_runs_the_pipeline_on_test_cameras_and_a_flaky_sync_box() {
     assert!(n(&stats["syncbox"]["parser"]["lines_ok"]) >= 1, "{stats:#}");
     assert!(out.join("bundles.csv").is_file() && out.join("bundles.c3d").is_file());
     assert!(log.contains("timecode:"), "{log}");
+}
+
+/// A live take keeps every stage thread at the process's priority (a replay runs its
+/// other stages behind the track stage): its source must not wait for a core while a
+/// camera's frame is due.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_live_take_keeps_every_stage_at_the_process_priority() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = synth_session(dir.path(), 40);
+    let cfg = config(dir.path(), "");
+    let child = helmcap()
+        .args(["live", "--config"])
+        .arg(&cfg)
+        .arg("--test-source")
+        .arg(&session)
+        .arg("--out")
+        .arg(dir.path().join("live"))
+        .arg("--cache-dir")
+        .arg(dir.path().join("cache"))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let parent = common::own_nice_level();
+    let (seen, output) = common::thread_nice_levels_until_exit(child);
+    assert!(output.status.success(), "{}", text(&output));
+    let stages: Vec<_> = seen
+        .iter()
+        .filter(|(name, _)| name.starts_with("helmcap:"))
+        .collect();
+    for stage in [
+        "helmcap:source",
+        "helmcap:track",
+        "helmcap:solve",
+        "helmcap:sinks",
+    ] {
+        assert!(seen.contains_key(stage), "no thread {stage} seen: {seen:?}");
+    }
+    for (name, level) in stages {
+        assert_eq!(*level, parent, "{name}: {seen:?}");
+    }
 }

@@ -670,25 +670,6 @@ fn solve_stage_treats_bundles_as_noisy_unless_told() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
-/// Nice level of each thread of process `pid` (by thread name), from `/proc`.
-#[cfg(target_os = "linux")]
-fn thread_nice_levels(pid: u32) -> Vec<(String, i32)> {
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
-        return Vec::new();
-    };
-    tasks
-        .flatten()
-        .filter_map(|task| {
-            let name = std::fs::read_to_string(task.path().join("comm")).ok()?;
-            let stat = std::fs::read_to_string(task.path().join("stat")).ok()?;
-            // Fields after the name's closing parenthesis start at the state (field 3);
-            // the nice level is field 19.
-            let nice = stat.rsplit_once(')')?.1.split_whitespace().nth(16)?;
-            Some((name.trim().to_string(), nice.parse().ok()?))
-        })
-        .collect()
-}
-
 /// A replay's source reads ahead ten nice levels below the track stage and the stages
 /// after the track stage run at the lowest priority (19), so that they use the cores the
 /// track stage leaves idle; the track stage keeps the process's priority.
@@ -698,7 +679,7 @@ fn a_replay_runs_its_other_stages_behind_the_track_stage() {
     let dir = tempfile::tempdir().unwrap();
     let session = synth(dir.path(), 40, &[]);
     let out = dir.path().join("out");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_helmcap"))
+    let child = Command::new(env!("CARGO_BIN_EXE_helmcap"))
         .args(["replay", session.to_str().unwrap(), "--out"])
         .arg(&out)
         .arg("--cache-dir")
@@ -708,26 +689,9 @@ fn a_replay_runs_its_other_stages_behind_the_track_stage() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let parent: i32 = thread_nice_levels(std::process::id())
-        .first()
-        .map(|t| t.1)
-        .unwrap();
-    // The lowest priority each stage thread was seen at (a thread lowers its own priority
-    // as it starts).
-    let mut seen: HashMap<String, i32> = HashMap::new();
-    while child.try_wait().unwrap().is_none() {
-        for (name, nice) in thread_nice_levels(child.id()) {
-            let level = seen.entry(name).or_insert(nice);
-            *level = (*level).max(nice);
-        }
-        std::thread::sleep(std::time::Duration::from_millis(1));
-    }
-    let status = child.wait_with_output().unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
-    );
+    let parent = common::own_nice_level();
+    let (seen, output) = common::thread_nice_levels_until_exit(child);
+    ok(&output);
     let level = |name: &str| {
         *seen
             .get(name)

@@ -73,3 +73,59 @@ pub fn blender_python() -> Result<PathBuf, String> {
         )),
     }
 }
+
+/// The nice level in a `/proc` `stat` file (of a process or a thread).
+#[cfg(target_os = "linux")]
+fn nice_level(stat: &Path) -> Option<i32> {
+    let stat = std::fs::read_to_string(stat).ok()?;
+    // Fields after the name's closing parenthesis start at the state (field 3); the nice
+    // level is field 19.
+    stat.rsplit_once(')')?
+        .1
+        .split_whitespace()
+        .nth(16)?
+        .parse()
+        .ok()
+}
+
+/// The nice level of each thread of process `pid`, by thread name, from `/proc`.
+#[cfg(target_os = "linux")]
+fn thread_nice_levels(pid: u32) -> Vec<(String, i32)> {
+    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
+        return Vec::new();
+    };
+    tasks
+        .flatten()
+        .filter_map(|task| {
+            let name = std::fs::read_to_string(task.path().join("comm")).ok()?;
+            Some((
+                name.trim().to_string(),
+                nice_level(&task.path().join("stat"))?,
+            ))
+        })
+        .collect()
+}
+
+/// The nice level of this test process (its main thread).
+#[cfg(target_os = "linux")]
+pub fn own_nice_level() -> i32 {
+    nice_level(Path::new("/proc/self/stat")).expect("the test process's nice level")
+}
+
+/// Samples the nice level of every thread of `child` (every millisecond) until it exits:
+/// per thread name the lowest priority (highest nice level) seen, since a thread may
+/// lower its own priority as it starts; and the child's output.
+#[cfg(target_os = "linux")]
+pub fn thread_nice_levels_until_exit(
+    mut child: std::process::Child,
+) -> (std::collections::HashMap<String, i32>, Output) {
+    let mut seen = std::collections::HashMap::new();
+    while child.try_wait().expect("child status").is_none() {
+        for (name, nice) in thread_nice_levels(child.id()) {
+            let level = seen.entry(name).or_insert(nice);
+            *level = (*level).max(nice);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    (seen, child.wait_with_output().expect("child output"))
+}
