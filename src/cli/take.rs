@@ -48,7 +48,8 @@ pub struct TakeArgs {
     /// Stop after labeling and stabilization (no dense solve, no meshes).
     #[arg(long)]
     pub no_solve: bool,
-    /// Frames each stage channel holds.
+    /// Frames each stage channel holds (a replay's source decodes up to four times as many
+    /// ahead of the detection).
     #[arg(long, default_value_t = 4)]
     pub queue: usize,
     /// Do not read or write the dataset and LGI index caches.

@@ -178,7 +178,7 @@ pub struct ChannelConfig {
     /// the track stage leaves a core idle, so a deeper queue lets it ride out the frames
     /// where it gets less of the cores. On the 480-frame cluttered take, 112-115 frames/s
     /// at the default channel capacity of 4 and 116-118 at 16 (four alternated pairs).
-    /// Never below `capacity`.
+    /// Never below `capacity` (`helmcap replay` sets four times `--queue`).
     pub replay_entry_capacity: usize,
 }
 

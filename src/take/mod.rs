@@ -145,6 +145,11 @@ pub enum TakeError {
     Viewer(#[source] RerunSinkError),
 }
 
+/// How many times the stage channels' capacity (`--queue`) a replay's source may decode
+/// ahead of the track stage ([`crate::pipeline::ChannelConfig::replay_entry_capacity`]):
+/// 16 frames at the default queue of 4.
+pub const REPLAY_READ_AHEAD: usize = 4;
+
 /// Everything that shapes a take besides its source, its output folder and what the
 /// sinks are told of it ([`crate::pipeline::TakeInfo`]). Every field has a default
 /// ([`TakeSpec::default`]): the built-in actor, the capture defaults, LGI's noisy preset,
@@ -174,7 +179,8 @@ pub struct TakeSpec {
     pub solve: SolveSpec,
     /// The rig stage (rig weights per frame, Live Link). Default off.
     pub rig: RigSpec,
-    /// Frames each stage channel holds. Default 4.
+    /// Frames each stage channel holds; a replay's source may decode
+    /// [`REPLAY_READ_AHEAD`] times as many ahead of the track stage. Default 4.
     pub queue: usize,
     /// The rerun recording and viewer. Default neither.
     pub viewer: ViewerSpec,
@@ -309,6 +315,7 @@ impl TakeSpec {
         config.track.detect = profile.detect_params(Some(&config.rig));
         config.track.label = profile.label_params();
         config.channels.capacity = self.queue;
+        config.channels.replay_entry_capacity = REPLAY_READ_AHEAD.saturating_mul(self.queue);
         config
     }
 
