@@ -698,6 +698,8 @@ fn a_replay_runs_its_other_stages_behind_the_track_stage() {
             .unwrap_or_else(|| panic!("no thread {name} seen: {seen:?}"))
     };
     assert_eq!(level("helmcap:track"), parent, "{seen:?}");
+    // The main thread and the thread pool's workers, which detect for the track stage.
+    assert_eq!(level("helmcap"), parent, "{seen:?}");
     assert_eq!(level("helmcap:source"), (parent + 10).min(19), "{seen:?}");
     for stage in ["helmcap:stabili", "helmcap:solve", "helmcap:sinks"] {
         assert_eq!(level(stage), 19, "{stage}: {seen:?}");

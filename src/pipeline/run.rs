@@ -222,6 +222,10 @@ pub fn run(
     let live = source.is_live();
     // A replay runs its stages behind the track stage; a live take all alike.
     let nice_step = |stage: Stage| if live { 0 } else { replay_nice_step(stage) };
+    // The shared thread pool, which detects in the track stage's place, starts here if
+    // it has not yet: its workers take the nice level of the thread that starts them,
+    // which must not be a stage running behind the track stage.
+    rayon::current_num_threads();
     let meta = SessionMeta {
         name,
         fps,
