@@ -1033,9 +1033,14 @@ pub fn small_scale_limit_px(r: usize) -> f64 {
 /// scale's `coarse` blobs (round and wider than the small window handles) and the small
 /// scale's `fine` ones, each dot once.
 fn merge_scales(mut coarse: Vec<Detection>, mut fine: Vec<Detection>) -> Vec<Detection> {
-    let inside = |c: &Detection, f: &Detection| {
-        (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
-    };
+    // The small blobs in order of their centres' x, to look up those a large blob may
+    // hold (within its reach in x) instead of asking every one of them.
+    let mut by_x: Vec<(f64, usize)> = fine
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (f.centre_px.x, i))
+        .collect();
+    by_x.sort_by(|a, b| a.0.total_cmp(&b.0));
     // A large dot is one round blob: it holds at most one of the small scale's blobs
     // (its ring). A large blob around several small ones is a patch of skin with dots
     // in it (an eyebrow, the shading beside the nose), not a dot.
@@ -1044,21 +1049,58 @@ fn merge_scales(mut coarse: Vec<Detection>, mut fine: Vec<Detection>) -> Vec<Det
     // whose centre is off), and if the small one is not a whole dot much smaller than
     // the large blob (a dot seen obliquely among hair strokes, which the large window
     // merges into a round patch around it): a large dot is a ring in the small window.
-    coarse.retain(|c| {
-        let mut held = fine.iter().filter(|f| inside(c, f));
-        match (held.next(), held.next()) {
-            (None, _) => true,
-            (Some(f), None) => {
-                (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
-                    && !(c.diameter_px > COARSE_MAX_OVER_WHOLE * f.diameter_px
-                        && ellipse_fill(f) >= WHOLE_MIN_FILL)
+    let kept: Vec<bool> = coarse
+        .iter()
+        .map(|c| {
+            let mut held = held_by(c, &fine, &by_x);
+            match (held.next(), held.next()) {
+                (None, _) => true,
+                (Some(i), None) => {
+                    let f = &fine[i];
+                    (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
+                        && !(c.diameter_px > COARSE_MAX_OVER_WHOLE * f.diameter_px
+                            && ellipse_fill(f) >= WHOLE_MIN_FILL)
+                }
+                (Some(_), Some(_)) => false,
             }
-            (Some(_), Some(_)) => false,
+        })
+        .collect();
+    // The small blobs a large blob kept holds are its ring: dropped.
+    let mut dropped = vec![false; fine.len()];
+    for (c, _) in coarse.iter().zip(&kept).filter(|(_, k)| **k) {
+        for i in held_by(c, &fine, &by_x) {
+            dropped[i] = true;
         }
-    });
-    fine.retain(|f| !coarse.iter().any(|c| inside(c, f)));
+    }
+    let mut k = kept.iter();
+    coarse.retain(|_| k.next().copied().unwrap_or(false));
+    let mut d = dropped.iter();
+    fine.retain(|_| !d.next().copied().unwrap_or(false));
     fine.extend(coarse);
     fine
+}
+
+/// Whether the small scale's blob `f` lies inside the large scale's blob `c` (its centre
+/// within `c`'s radius and a pixel).
+fn inside(c: &Detection, f: &Detection) -> bool {
+    (c.centre_px - f.centre_px).norm() <= 0.5 * c.diameter_px + 1.0
+}
+
+/// The indices of the blobs of `fine` inside `c` ([`inside`]), `by_x` their centres' x
+/// and indices in order of x.
+fn held_by<'a>(
+    c: &'a Detection,
+    fine: &'a [Detection],
+    by_x: &'a [(f64, usize)],
+) -> impl Iterator<Item = usize> + 'a {
+    // A pixel's margin over the reach in x: `norm` may round below `|dx|`.
+    let reach = 0.5 * c.diameter_px + 2.0;
+    let first = by_x.partition_point(|&(x, _)| x < c.centre_px.x - reach);
+    by_x[first..]
+        .iter()
+        .take_while(move |&&(x, _)| x <= c.centre_px.x + reach)
+        .map(|&(_, i)| i)
+        .filter(move |&i| inside(c, &fine[i]))
 }
 
 /// How much longer than a whole dot of the small window scale (filling at least
@@ -2373,6 +2415,98 @@ mod tests {
             });
         }
         assert!(compared >= 12, "{compared} blobs compared");
+    }
+
+    /// [`merge_scales`] as first written: every large blob asks every small one.
+    fn merge_scales_every_pair(
+        mut coarse: Vec<Detection>,
+        mut fine: Vec<Detection>,
+    ) -> Vec<Detection> {
+        coarse.retain(|c| {
+            let mut held = fine.iter().filter(|f| inside(c, f));
+            match (held.next(), held.next()) {
+                (None, _) => true,
+                (Some(f), None) => {
+                    (c.centre_px - f.centre_px).norm() <= (0.1 * c.diameter_px).max(1.5)
+                        && !(c.diameter_px > COARSE_MAX_OVER_WHOLE * f.diameter_px
+                            && ellipse_fill(f) >= WHOLE_MIN_FILL)
+                }
+                (Some(_), Some(_)) => false,
+            }
+        });
+        fine.retain(|f| !coarse.iter().any(|c| inside(c, f)));
+        fine.extend(coarse);
+        fine
+    }
+
+    #[test]
+    fn the_two_scales_merge_as_when_every_pair_is_asked() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(17);
+        let blob = |rng: &mut rand::rngs::StdRng, spread: f64, size: (f64, f64)| {
+            let special = rng.random_range(0..40);
+            let x = match special {
+                0 => f64::NAN,
+                1 => f64::INFINITY,
+                _ => rng.random_range(0.0..spread),
+            };
+            let diameter_px = match special {
+                2 => f64::NAN,
+                3 => f64::INFINITY,
+                _ => rng.random_range(size.0..size.1),
+            };
+            let roundness = rng.random_range(0.3..1.0);
+            Detection {
+                centre_px: Point2::new(x, rng.random_range(0.0..spread)),
+                area_px: rng.random_range(5..400),
+                roundness,
+                contrast_dn: 60.0,
+                quality: 0.4,
+                diameter_px,
+                axis_rad: 0.0,
+                streak: false,
+            }
+        };
+        let mut compared = 0;
+        for round in 0..300 {
+            // Dense and sparse scenes: many small blobs around few large ones, and
+            // pairs that share a centre (a large dot's ring).
+            let spread = [60.0, 200.0, 800.0][round % 3];
+            let coarse: Vec<Detection> = (0..rng.random_range(0..30))
+                .map(|_| blob(&mut rng, spread, (14.0, 40.0)))
+                .collect();
+            let mut fine: Vec<Detection> = (0..rng.random_range(0..120))
+                .map(|_| blob(&mut rng, spread, (3.0, 16.0)))
+                .collect();
+            for c in coarse.iter().take(5) {
+                let mut ring = blob(&mut rng, spread, (3.0, 40.0));
+                ring.centre_px = c.centre_px + nalgebra::Vector2::new(0.5, -0.5);
+                fine.push(ring);
+            }
+            let want = merge_scales_every_pair(coarse.clone(), fine.clone());
+            let got = merge_scales(coarse, fine);
+            assert_eq!(got.len(), want.len(), "round {round}");
+            for (g, w) in got.iter().zip(&want) {
+                // Bit for bit, NaN included.
+                assert_eq!(
+                    g.centre_px.x.to_bits(),
+                    w.centre_px.x.to_bits(),
+                    "round {round}"
+                );
+                assert_eq!(
+                    g.centre_px.y.to_bits(),
+                    w.centre_px.y.to_bits(),
+                    "round {round}"
+                );
+                assert_eq!(
+                    g.diameter_px.to_bits(),
+                    w.diameter_px.to_bits(),
+                    "round {round}"
+                );
+            }
+            compared += got.len();
+        }
+        assert!(compared > 5000, "{compared} blobs compared");
     }
 
     #[test]
