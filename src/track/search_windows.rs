@@ -46,15 +46,21 @@ impl SearchWindows {
         rows.dedup();
         let mut out = Self::default();
         let mut row_spans: Vec<(usize, usize)> = Vec::new();
+        // A sweep down the bands: the rectangles in order of their first row, and those
+        // over the current band (a band's rows lie in a rectangle or not at all).
+        let mut by_top: Vec<usize> = (0..clipped.len()).collect();
+        by_top.sort_unstable_by_key(|&i| clipped[i].1);
+        let mut next = 0;
+        let mut over: Vec<usize> = Vec::new();
         for band in rows.windows(2) {
             let (ya, yb) = (band[0], band[1]);
+            while let Some(&i) = by_top.get(next).filter(|&&i| clipped[i].1 <= ya) {
+                over.push(i);
+                next += 1;
+            }
+            over.retain(|&i| ya < clipped[i].3);
             row_spans.clear();
-            row_spans.extend(
-                clipped
-                    .iter()
-                    .filter(|r| r.1 <= ya && ya < r.3)
-                    .map(|r| (r.0, r.2)),
-            );
+            row_spans.extend(over.iter().map(|&i| (clipped[i].0, clipped[i].2)));
             if row_spans.is_empty() {
                 continue;
             }
@@ -301,6 +307,38 @@ mod tests {
         }
         assert_eq!(w.area(), area);
         assert_eq!(w.bounds(), Some((2, 3, 95, 100)));
+    }
+
+    #[test]
+    fn many_random_rectangles_give_each_row_their_union() {
+        let mut rng = StdRng::seed_from_u64(23);
+        for round in 0..60 {
+            let size = [40, 300, 900][round % 3];
+            let rects: Vec<Rect> = (0..rng.random_range(0..120))
+                .map(|_| {
+                    let (x, y) = (rng.random_range(0..size), rng.random_range(0..size));
+                    let (w, h) = (rng.random_range(0..60), rng.random_range(0..60));
+                    (x, y, x + w, y + h)
+                })
+                .collect();
+            let clip = (3, 5, size as usize - 2, size as usize - 7);
+            let w = SearchWindows::new(&rects, clip);
+            for y in (0..size as usize + 70).step_by(1 + round % 7) {
+                let spans = w.row(y);
+                assert!(
+                    spans.windows(2).all(|p| p[0].1 < p[1].0),
+                    "row {y}: {spans:?}"
+                );
+                for x in 0..size as usize + 70 {
+                    let in_span = spans.iter().any(|s| x >= s.0 && x < s.1);
+                    assert_eq!(
+                        in_span,
+                        inside(&rects, clip, x, y),
+                        "round {round} ({x}, {y})"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
