@@ -465,14 +465,25 @@ fn a_lip_dot_merged_with_its_mole_is_not_labeled_between_the_two() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// A `lip-press` set-up (made after the preset, never tuned on) whose forehead dot, seen
+/// 81° from cam1 (not found there), has a 3.8 mm mole beside it that both cameras see,
+/// merged with the dot in cam0: it was labeled on the mole from its first sighting on,
+/// 6 px from the dot, for 56 frames from frame 4 (seed 901, M009; see
+/// `LabelParams::never_seen_max_relative_size`).
+const LIP_PRESS_LARGE_MOLE_SET_UPS: [(u64, usize); 1] = [(901, 20)];
+
+#[test]
+fn a_mole_larger_than_a_dot_beside_an_edge_on_dot_is_not_taken_for_it() {
+    let failures = set_up_failures("lip-press", &LIP_PRESS_LARGE_MOLE_SET_UPS, 0.99);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 /// `lip-press` set-ups on which markers are still labeled on the wrong spot (run with
 /// `--ignored`; README, "Capture presets"): a dot seen nearly edge-on (about 80° from
 /// the cameras) beside a mole that looks as thin, labeled on the mole, or on the two
 /// merged, 5-9 px from the dot's place in the camera that sees it most edge-on (seeds 3
-/// and 4); a forehead dot seen 81° from cam1 (not found there) beside a mole of a dot's
-/// size that both cameras see, merged with it in cam0, labeled on the mole from its first
-/// sighting on, 6 px from the dot (seed 901, M009).
-const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 3] = [(3, 120), (4, 120), (901, 60)];
+/// and 4).
+const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 2] = [(3, 120), (4, 120)];
 
 #[test]
 #[ignore = "known wrong labels under lip presses (see LIP_PRESS_KNOWN_WRONG)"]

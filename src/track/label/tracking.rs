@@ -245,8 +245,9 @@ impl Labeler {
 
     /// Whether detections `det` at `point` are sized like marker `i`'s neighbours' dots, as
     /// a marker never labeled since the acquisition must be
-    /// ([`super::LabelParams::never_seen_min_relative_size`]), its neighbours' taken at
-    /// their labels in the last frame ([`sized_like`]).
+    /// ([`super::LabelParams::never_seen_min_relative_size`],
+    /// [`super::LabelParams::never_seen_max_relative_size`]), its neighbours' taken at
+    /// their labels in the last frame ([`Labeler::sized_like_a_never_seen_dot`]).
     pub(super) fn sized_like_neighbours(
         &self,
         i: usize,
@@ -259,14 +260,20 @@ impl Labeler {
             .filter(|t| t.frames_since_seen == Some(0))
             .filter_map(|t| t.size_over_expected)
             .collect();
-        self.size_over_expected(point, det).is_none_or(|own| {
-            sized_like(
-                own,
-                &theirs,
-                self.params.never_seen_min_relative_size,
-                false,
-            )
-        })
+        self.size_over_expected(point, det)
+            .is_none_or(|own| self.sized_like_a_never_seen_dot(own, &theirs))
+    }
+
+    /// Whether a blob of [`Labeler::size_over_expected`] `own` may be the dot of a marker
+    /// never labeled since the acquisition, its neighbours' dots measuring `theirs`: at
+    /// least [`super::LabelParams::never_seen_min_relative_size`] of theirs in one camera
+    /// at least ([`sized_like`]), and not larger than
+    /// [`super::LabelParams::never_seen_max_relative_size`] of theirs in both
+    /// ([`larger_than_neighbours`]).
+    fn sized_like_a_never_seen_dot(&self, own: [f64; 2], theirs: &[[f64; 2]]) -> bool {
+        let p = &self.params;
+        sized_like(own, theirs, p.never_seen_min_relative_size, false)
+            && !larger_than_neighbours(own, theirs, p.never_seen_max_relative_size)
     }
 
     /// Drops from an acquisition's `labels` those sized unlike the dots of their
@@ -275,16 +282,11 @@ impl Labeler {
     /// taken there as later. Returns how many were dropped.
     pub(super) fn drop_sized_unlike_neighbours(&self, labels: &mut Vec<Label>) -> usize {
         let sizes = self.label_sizes(labels, |l| !l.worn && l.at.is_none());
-        let share = self.params.never_seen_min_relative_size;
         let before = labels.len();
         labels.retain(|l| {
             sizes[l.marker].is_none_or(|own| {
-                sized_like(
-                    own,
-                    &neighbours_sizes(&self.neighbours[l.marker], &sizes),
-                    share,
-                    false,
-                )
+                let theirs = neighbours_sizes(&self.neighbours[l.marker], &sizes);
+                self.sized_like_a_never_seen_dot(own, &theirs)
             })
         });
         before - labels.len()
@@ -1719,21 +1721,37 @@ fn neighbours_sizes(neighbours: &[(usize, f64)], sizes: &[Option<[f64; 2]>]) -> 
 /// [`super::LabelParams::never_seen_min_relative_size`]), or with `in_both` in both;
 /// true with fewer than two neighbours or a share of 0.
 fn sized_like(own: [f64; 2], theirs: &[[f64; 2]], share: f64, in_both: bool) -> bool {
-    if share <= 0.0 || theirs.len() < 2 {
+    let Some(median) = median_sizes(theirs).filter(|_| share > 0.0) else {
         return true;
-    }
-    let like = |c: usize| {
-        let mut sizes: Vec<f64> = theirs.iter().map(|s| s[c]).collect();
-        sizes.sort_by(f64::total_cmp);
-        let n = sizes.len();
-        let median = 0.5 * (sizes[(n - 1) / 2] + sizes[n / 2]);
-        own[c] >= share * median
     };
+    let like = |c: usize| own[c] >= share * median[c];
     if in_both {
         like(0) && like(1)
     } else {
         like(0) || like(1)
     }
+}
+
+/// Whether a blob of [`Labeler::size_over_expected`] `own` is larger than `share` times
+/// the median of its neighbours' dots' (`theirs`) in both cameras (see
+/// [`super::LabelParams::never_seen_max_relative_size`]); false with fewer than two
+/// neighbours or a share of 0.
+fn larger_than_neighbours(own: [f64; 2], theirs: &[[f64; 2]], share: f64) -> bool {
+    median_sizes(theirs)
+        .filter(|_| share > 0.0)
+        .is_some_and(|median| (0..2).all(|c| own[c] > share * median[c]))
+}
+
+/// Per camera, the median of `sizes`; None for fewer than two.
+fn median_sizes(sizes: &[[f64; 2]]) -> Option<[f64; 2]> {
+    (sizes.len() >= 2).then(|| {
+        [0, 1].map(|c| {
+            let mut v: Vec<f64> = sizes.iter().map(|s| s[c]).collect();
+            v.sort_by(f64::total_cmp);
+            let n = v.len();
+            0.5 * (v[(n - 1) / 2] + v[n / 2])
+        })
+    })
 }
 
 /// The singular values `σ₁ ≥ σ₂` of a 2×3 matrix (square roots of the eigenvalues of
