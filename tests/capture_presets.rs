@@ -400,8 +400,10 @@ fn every_preset_reaches_its_goal() {
 /// moles taken for wiped markers: a marker wiped before the take labeled on a mole two
 /// thirds of a dot's size (seeds 7 and 203), and markers whose place their neighbours do
 /// not follow taken, after a long gap, on a mole that slid where they were predicted
-/// (seed 11). Frame counts: up to the frames where that happened.
-const WIPED_MOLES_SET_UPS: [(u64, usize); 3] = [(7, 40), (11, 90), (203, 60)];
+/// (seed 11), and a marker wiped mid-take labeled for four frames on a freckle that lay
+/// under its dot, a third of the ink's contrast (seed 912, M096 from frame 23; see
+/// `LabelParams::kept_contrast_ratio`). Frame counts: up to the frames where that happened.
+const WIPED_MOLES_SET_UPS: [(u64, usize); 4] = [(7, 40), (11, 90), (203, 60), (912, 30)];
 
 #[test]
 fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {

@@ -289,6 +289,18 @@ pub struct LabelParams {
     /// in both. The same share tells a tracked marker's dot that moved suddenly from a
     /// rival blob beside it (see `Labeler::doubt_told_by_size`).
     pub returning_max_size_change: f64,
+    /// A marker labeled within the last 10 frames is taken only on blobs at least this
+    /// share as dark (as bright, for bright dots) against the skin around them as its dot
+    /// was at its last label ([`crate::track::Detection::contrast_dn`]), in one camera at
+    /// least, after allowing for the frame's change of light: the median change of the
+    /// markers the pose pass found where they were labeled in the last frame (a flicker,
+    /// an exposure step, a shadow over the face move them all alike); 0: no check. A
+    /// freckle or a mole's paler rim under a dot that was just wiped off, or a crease
+    /// beside it, is fainter than the ink in both cameras and may lie within the dot's
+    /// gate at its size; the ink, whole, partly hidden by a lip or blurred, keeps most of
+    /// its contrast in one camera at least. Default 0.6: see the README's "A tracked
+    /// marker keeps its ink's contrast".
+    pub kept_contrast_ratio: f64,
     /// Whether a marker may be labeled on a worn dot: a blob that fails the dot's shape
     /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],
     /// [`LabelParams::first_sighting_min_fill`]) because sweat or a wipe smeared its ink
@@ -381,6 +393,7 @@ impl Default for LabelParams {
             never_seen_min_relative_size: 0.75,
             never_seen_max_relative_size: 1.3,
             returning_max_size_change: 0.15,
+            kept_contrast_ratio: 0.6,
             worn_dots: true,
             worn_dot_size_ratio: (1.2, 2.5),
             worn_dot_min_width_ratio: 0.5,
@@ -503,6 +516,9 @@ impl LabelParams {
             ));
         }
         non_negative(self.returning_max_size_change, "returning_max_size_change")?;
+        if !(0.0..=1.0).contains(&self.kept_contrast_ratio) {
+            return Err(err("kept_contrast_ratio", "must be in [0, 1]"));
+        }
         if !(0.0..=1.0).contains(&self.worn_dot_min_width_ratio) {
             return Err(err("worn_dot_min_width_ratio", "must be in [0, 1]"));
         }
@@ -610,6 +626,10 @@ struct Track {
     /// camera's blob diameter over the largest major axis a dot can have there
     /// ([`Labeler::size_over_expected`]); None before such a label since the acquisition.
     size_over_expected: Option<[f64; 2]>,
+    /// Each camera's blob contrast ([`Detection::contrast_dn`]) at the marker's last label
+    /// on a dot's own blob (not a worn dot, not a lobe of a merged blob); None before such
+    /// a label since the acquisition.
+    contrast_dn: Option<[f64; 2]>,
 }
 
 /// Tracks and labels markers frame by frame (see the module docs).
@@ -657,6 +677,10 @@ pub struct Labeler {
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
+    /// Per camera, this frame's change of light: the median ratio of the contrast of the
+    /// pose pass's labels to their markers' last ([`Track::contrast_dn`]); NaN when not
+    /// known (see [`LabelParams::kept_contrast_ratio`]).
+    light: [f64; 2],
     /// The shapes of the current frame's detections, per camera.
     blobs: [Vec<BlobShape>; 2],
     /// An acquisition under way over several frames.
@@ -770,6 +794,8 @@ struct BlobShape {
     axis: Option<Vector2<f64>>,
     /// [`Detection::streak`].
     streak: bool,
+    /// [`Detection::contrast_dn`].
+    contrast_dn: f64,
 }
 
 impl BlobShape {
@@ -785,6 +811,7 @@ impl BlobShape {
                 .is_finite()
                 .then(|| Vector2::new(d.axis_rad.cos(), d.axis_rad.sin())),
             streak: d.streak,
+            contrast_dn: d.contrast_dn,
         }
     }
 }
@@ -914,6 +941,7 @@ impl Labeler {
                     .max(params.max_reprojection_px),
                 ..params.epipolar_gate.clone()
             }),
+            light: [f64::NAN; 2],
             blobs: [Vec::new(), Vec::new()],
             acquisition: acquisition::Search::default(),
             params,
@@ -985,6 +1013,7 @@ impl Labeler {
         self.seen_before = None;
         self.beside.iter_mut().for_each(|b| *b = Default::default());
         self.lobes.iter_mut().for_each(|l| *l = [None; 2]);
+        self.light = [f64::NAN; 2];
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -1108,6 +1137,7 @@ impl Labeler {
         let size = self.whole_dot_sizes(&pass.labels, &small);
         let inverse = pose.inverse();
         for l in &pass.labels {
+            let contrast = [0, 1].map(|c| self.blobs[c].get(l.det[c]).map(|b| b.contrast_dn));
             let track = &mut self.tracks[l.marker];
             let reacquired = matches!(track.frames_since_seen, Some(n) if n > 0);
             let head = inverse * l.bundle.point_in_cam0;
@@ -1125,6 +1155,12 @@ impl Labeler {
             });
             if size[l.marker].is_some() {
                 track.size_over_expected = size[l.marker];
+            }
+            if !l.worn
+                && l.at.is_none()
+                && let [Some(c0), Some(c1)] = contrast
+            {
+                track.contrast_dn = Some([c0, c1]);
             }
             track.small_blob_frames = if small[l.marker] {
                 track.small_blob_frames + 1
@@ -1354,6 +1390,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             confirming: 0,
             small_blob_frames: 0,
             size_over_expected: None,
+            contrast_dn: None,
         })
         .collect()
 }

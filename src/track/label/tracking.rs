@@ -98,6 +98,10 @@ const LOBE_MIN_ACROSS_RATIO: f64 = 0.6;
 /// within 10 % of it in one camera at least.
 const SIZE_MEMORY_MIN_GAP_FRAMES: usize = 10;
 
+/// The fewest labels of markers tracked from the last frame that tell a frame's change of
+/// light ([`Labeler::change_of_light`]); with fewer, contrast is not checked.
+const LIGHT_MIN_LABELS: usize = 5;
+
 /// A label's blob is remembered as its dot's size ([`Labeler::whole_dot_sizes`]) only
 /// when at least this share of its neighbours' dots' in both cameras: as a never-seen
 /// marker's blob must be in one ([`super::LabelParams::never_seen_min_relative_size`]'s
@@ -359,6 +363,64 @@ impl Labeler {
         let larger = r.iter().all(|&r| r > k);
         let smaller = r.iter().all(|&r| r * k < 1.0);
         !(larger || smaller)
+    }
+
+    /// Per camera, the median ratio of the contrast of `labels`' blobs to their markers'
+    /// at their labels in the last frame ([`Track::contrast_dn`]), over the labels on a
+    /// dot's own blob of markers labeled in the last frame: the frame's change of light
+    /// (see [`super::LabelParams::kept_contrast_ratio`]). NaN with fewer than
+    /// [`LIGHT_MIN_LABELS`] such labels.
+    pub(super) fn change_of_light(&self, labels: &[Label]) -> [f64; 2] {
+        [0, 1].map(|c| {
+            let mut ratios: Vec<f64> = labels
+                .iter()
+                .filter(|l| !l.worn && l.at.is_none())
+                .filter_map(|l| {
+                    let t = &self.tracks[l.marker];
+                    let last = t.contrast_dn.filter(|_| t.frames_since_seen == Some(0))?[c];
+                    let now = self.blobs[c].get(l.det[c])?.contrast_dn;
+                    let r = now / last;
+                    (r.is_finite() && r > 0.0).then_some(r)
+                })
+                .collect();
+            if ratios.len() < LIGHT_MIN_LABELS {
+                return f64::NAN;
+            }
+            ratios.sort_by(f64::total_cmp);
+            let n = ratios.len();
+            0.5 * (ratios[(n - 1) / 2] + ratios[n / 2])
+        })
+    }
+
+    /// Whether detections `det` (cam0, cam1) keep the contrast of marker `i`'s dot, as
+    /// [`super::LabelParams::kept_contrast_ratio`] asks of a marker labeled within the
+    /// last [`SIZE_MEMORY_MIN_GAP_FRAMES`] frames: not fainter than that share of its
+    /// dot's at its last label, times the frame's change of light (`Labeler::light`),
+    /// in both cameras. True for other markers, while the change of light is not known
+    /// (the pose pass, the acquisition), and for a detector that does not measure
+    /// contrast.
+    pub(super) fn kept_its_contrast(&self, i: usize, det: [usize; 2]) -> bool {
+        let share = self.params.kept_contrast_ratio;
+        let t = &self.tracks[i];
+        let Some(last) = t.contrast_dn else {
+            return true;
+        };
+        if share <= 0.0
+            || t.frames_since_seen
+                .is_none_or(|n| n >= SIZE_MEMORY_MIN_GAP_FRAMES)
+        {
+            return true;
+        }
+        let fainter = |c: usize| {
+            let light = self.light[c];
+            self.blobs[c]
+                .get(det[c])
+                .map(|b| b.contrast_dn)
+                .is_some_and(|now| {
+                    (now * last[c] * light).is_finite() && now < share * light * last[c]
+                })
+        };
+        !(fainter(0) && fainter(1))
     }
 
     /// Whether detections `det` (cam0, cam1) are as round as a dot at `point` with the
@@ -760,9 +822,12 @@ impl Labeler {
         steps: usize,
     ) -> Option<(Isometry3<f64>, PassResult)> {
         let predicted = self.predicted_pose(steps)?;
-        // Pass 1: wide gates, labels used only to estimate the head pose of this frame.
+        // Pass 1: wide gates, labels used only to estimate the head pose of this frame
+        // and its change of light.
         let wide = self.predictions(&predicted, steps, self.params.pose_pass_extra_gate_px);
+        self.light = [f64::NAN; 2];
         let first = self.label_pass(&wide, pixels);
+        self.light = self.change_of_light(&first.labels);
         let pose = self
             .estimate_pose(&first.labels)
             .map_or(predicted, |(pose, _)| pose);
@@ -833,6 +898,9 @@ impl Labeler {
                 continue;
             };
             if !l.confident && !self.doubt_told_by_size(l, wide, pixels, &done) {
+                continue;
+            }
+            if !self.kept_its_contrast(i, l.det) {
                 continue;
             }
             if let (Some(x0), Some(x1)) = (pixels[0][l.det[0]], pixels[1][l.det[1]])
@@ -1504,7 +1572,8 @@ impl Labeler {
                     && (!pr.first_sighting || self.filled_like_a_dot([a, b]))
                     && (self.tracks[i].frames_since_seen.is_some()
                         || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]))
-                    && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b]);
+                    && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b])
+                    && self.kept_its_contrast(i, [a, b]);
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
