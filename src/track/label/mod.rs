@@ -289,17 +289,18 @@ pub struct LabelParams {
     /// in both. The same share tells a tracked marker's dot that moved suddenly from a
     /// rival blob beside it (see `Labeler::doubt_told_by_size`).
     pub returning_max_size_change: f64,
-    /// A marker labeled within the last 10 frames is taken only on blobs at least this
-    /// share as dark (as bright, for bright dots) against the skin around them as its dot
-    /// was at its last label ([`crate::track::Detection::contrast_dn`]), in one camera at
-    /// least, after allowing for the frame's change of light: the median change of the
-    /// markers the pose pass found where they were labeled in the last frame (a flicker,
-    /// an exposure step, a shadow over the face move them all alike); 0: no check. A
-    /// freckle or a mole's paler rim under a dot that was just wiped off, or a crease
-    /// beside it, is fainter than the ink in both cameras and may lie within the dot's
-    /// gate at its size; the ink, whole, partly hidden by a lip or blurred, keeps most of
-    /// its contrast in one camera at least. Default 0.6: see the README's "A tracked
-    /// marker keeps its ink's contrast".
+    /// A marker labeled within the last 10 frames is not taken on a blob both fainter
+    /// than this share of its dot's contrast at its last label
+    /// ([`crate::track::Detection::contrast_dn`]: as dark, or as bright for bright dots,
+    /// against the skin around it) in both cameras, and smaller than a first sighting may
+    /// be ([`LabelParams::first_sighting_size_ratio`]); 0: no check. Contrast allows for
+    /// the change of light since that label, followed frame by frame as the median change
+    /// of the markers the pose pass found where they were labeled in the last frame (a
+    /// flicker or an exposure step moves them all alike). A freckle under a dot that was
+    /// just wiped off is fainter and smaller than the ink, inside the marker's gate; a dot
+    /// partly hidden by a lip is small but dark, one under a shadow that fell on part of
+    /// the face faint but whole. Default 0.6: see the README's "A tracked marker keeps its
+    /// ink's contrast".
     pub kept_contrast_ratio: f64,
     /// Whether a marker may be labeled on a worn dot: a blob that fails the dot's shape
     /// rules ([`LabelParams::dot_size_ratio`], [`LabelParams::min_roundness_ratio`],
@@ -627,8 +628,8 @@ struct Track {
     /// ([`Labeler::size_over_expected`]); None before such a label since the acquisition.
     size_over_expected: Option<[f64; 2]>,
     /// Each camera's blob contrast ([`Detection::contrast_dn`]) at the marker's last label
-    /// on a dot's own blob (not a worn dot, not a lobe of a merged blob); None before such
-    /// a label since the acquisition.
+    /// on a dot's own blob (not a worn dot, not a lobe of a merged blob), over the light of
+    /// that frame (`Labeler::light`); None before such a label since the acquisition.
     contrast_dn: Option<[f64; 2]>,
 }
 
@@ -677,10 +678,12 @@ pub struct Labeler {
     /// The epipolar gate, scaled with the measured residuals (kept across re-acquisition:
     /// the noise belongs to the cameras, not the tracks).
     gate: EpipolarGate,
-    /// Per camera, this frame's change of light: the median ratio of the contrast of the
-    /// pose pass's labels to their markers' last ([`Track::contrast_dn`]); NaN when not
-    /// known (see [`LabelParams::kept_contrast_ratio`]).
+    /// Per camera, the light of this frame relative to the acquisition's: the product of
+    /// the frames' changes of light since (see `Labeler::change_of_light` and
+    /// [`LabelParams::kept_contrast_ratio`]).
     light: [f64; 2],
+    /// Whether this frame's change of light is known (when not, contrast is not checked).
+    light_measured: bool,
     /// The shapes of the current frame's detections, per camera.
     blobs: [Vec<BlobShape>; 2],
     /// An acquisition under way over several frames.
@@ -941,7 +944,8 @@ impl Labeler {
                     .max(params.max_reprojection_px),
                 ..params.epipolar_gate.clone()
             }),
-            light: [f64::NAN; 2],
+            light: [1.0; 2],
+            light_measured: false,
             blobs: [Vec::new(), Vec::new()],
             acquisition: acquisition::Search::default(),
             params,
@@ -1013,7 +1017,8 @@ impl Labeler {
         self.seen_before = None;
         self.beside.iter_mut().for_each(|b| *b = Default::default());
         self.lobes.iter_mut().for_each(|l| *l = [None; 2]);
-        self.light = [f64::NAN; 2];
+        self.light = [1.0; 2];
+        self.light_measured = false;
     }
 
     /// Regions of interest (x0, y0, x1, y1, end exclusive) per camera around where markers
@@ -1137,7 +1142,11 @@ impl Labeler {
         let size = self.whole_dot_sizes(&pass.labels, &small);
         let inverse = pose.inverse();
         for l in &pass.labels {
-            let contrast = [0, 1].map(|c| self.blobs[c].get(l.det[c]).map(|b| b.contrast_dn));
+            let contrast = [0, 1].map(|c| {
+                self.blobs[c]
+                    .get(l.det[c])
+                    .map(|b| b.contrast_dn / self.light[c])
+            });
             let track = &mut self.tracks[l.marker];
             let reacquired = matches!(track.frames_since_seen, Some(n) if n > 0);
             let head = inverse * l.bundle.point_in_cam0;

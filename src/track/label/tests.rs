@@ -2405,10 +2405,11 @@ fn a_mole_larger_than_a_dot_where_a_never_seen_marker_should_be_is_not_taken_for
 #[test]
 fn a_freckle_under_a_wiped_dot_is_not_taken_for_its_marker() {
     // Markers tracked on their dots for ten frames, then wiped off: under each dot lay a
-    // freckle 0.4 mm from its centre, 0.6 of a dot's size and a third of its contrast
-    // (wiped-moles seed 912's M096), inside the marker's gate. The freckles are never
-    // labeled; without the rule they are, until the marker's blobs have been small for
-    // `SMALL_BLOB_FRAMES`.
+    // freckle 0.4 mm from its centre, 0.4 of a dot's size (smaller than a first sighting
+    // may be: on this rig's 7 px dots a blob half a dot's size is within the first
+    // sighting's 2 px for the rim) and a third of its contrast (wiped-moles seed 912's
+    // M096: 0.56-0.61 of its 16-19 px dot, 0.37), inside the marker's gate. The freckles are never labeled; without the
+    // rule they are, until the marker's blobs have been small for `SMALL_BLOB_FRAMES`.
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(17);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
@@ -2428,7 +2429,7 @@ fn a_freckle_under_a_wiped_dot_is_not_taken_for_its_marker() {
             if f >= 10 {
                 for freckle in &freckles {
                     add_blob(&rig, &pose, &mut obs, freckle, |dot_px| {
-                        (0.6 * dot_px, 0.95, 1.0)
+                        (0.4 * dot_px, 0.95, 1.0)
                     });
                     set_last_contrast(&mut obs, 20.0);
                 }
@@ -2461,7 +2462,10 @@ fn a_frame_darker_all_over_keeps_its_labels() {
     // Frames 8 and 9 are a third as contrasty everywhere (a light's flicker caught by
     // the shutter, an exposure step): every dot is fainter than at its last label by more
     // than `kept_contrast_ratio` allows, but alike, and the frame's change of light
-    // allows for it. Every marker seen by both cameras stays labeled in every frame.
+    // allows for it. Some markers are hidden in those two frames: back in the bright
+    // frame after them, their last label is from before the dark frames, and the light
+    // changed back as much as the others' did since theirs. Every marker seen by both
+    // cameras is labeled in every frame.
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(18);
     let mut lab = labeler_with_params(&layout, &pts, LabelParams::default());
@@ -2474,11 +2478,46 @@ fn a_frame_darker_all_over_keeps_its_labels() {
             Vector3::new(0.003 * t, -0.002 * t, 0.0),
             Vector3::new(0.1 * t, 0.0, 0.0),
         );
-        let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 5, &mut rng);
-        if (8..10).contains(&f) {
+        let dark = (8..10).contains(&f);
+        let hidden: &[usize] = if dark { &[5, 20, 40, 60, 75] } else { &[] };
+        let mut obs = observe(&rig, &pose, &pts, hidden, 0.15, 5, &mut rng);
+        if dark {
             for (dets, _) in obs.iter_mut() {
                 for d in dets.iter_mut() {
                     d.contrast_dn /= 3.0;
+                }
+            }
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let (ok, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}: {wrong} wrong labels");
+        assert_eq!(ok, visible_both(&truth), "frame {f}: {:?}", out.stats);
+    }
+}
+
+#[test]
+fn a_shadow_falling_on_half_the_face_keeps_its_labels() {
+    // From frame 8 the dots on one half of the face are a third as contrasty (a shadow
+    // that fell across the face between two frames and stays): the frame's change of
+    // light, a median over the whole face, does not allow for them, but they are whole
+    // dots, not smaller than at their last label. Every marker seen by both cameras is
+    // labeled in every frame.
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(19);
+    let mut lab = labeler_with_params(&layout, &pts, LabelParams::default());
+    let mut rng = Rng::new(119);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let shaded: Vec<bool> = pts.iter().map(|p| p.x < 0.0).collect();
+    assert!(shaded.iter().filter(|&&s| s).count() >= 20);
+    for f in 0..20usize {
+        let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 5, &mut rng);
+        if f >= 8 {
+            for (dets, truth) in obs.iter_mut() {
+                for (d, k) in dets.iter_mut().zip(truth.iter()) {
+                    if k.is_some_and(|k| shaded[k]) {
+                        d.contrast_dn /= 3.0;
+                    }
                 }
             }
         }

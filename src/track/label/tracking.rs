@@ -366,10 +366,10 @@ impl Labeler {
     }
 
     /// Per camera, the median ratio of the contrast of `labels`' blobs to their markers'
-    /// at their labels in the last frame ([`Track::contrast_dn`]), over the labels on a
-    /// dot's own blob of markers labeled in the last frame: the frame's change of light
-    /// (see [`super::LabelParams::kept_contrast_ratio`]). NaN with fewer than
-    /// [`LIGHT_MIN_LABELS`] such labels.
+    /// at their labels in the last frame ([`Track::contrast_dn`] times the last frame's
+    /// light), over the labels on a dot's own blob of markers labeled in the last frame:
+    /// the frame's change of light (see [`super::LabelParams::kept_contrast_ratio`]). NaN
+    /// with fewer than [`LIGHT_MIN_LABELS`] such labels.
     pub(super) fn change_of_light(&self, labels: &[Label]) -> [f64; 2] {
         [0, 1].map(|c| {
             let mut ratios: Vec<f64> = labels
@@ -379,7 +379,7 @@ impl Labeler {
                     let t = &self.tracks[l.marker];
                     let last = t.contrast_dn.filter(|_| t.frames_since_seen == Some(0))?[c];
                     let now = self.blobs[c].get(l.det[c])?.contrast_dn;
-                    let r = now / last;
+                    let r = now / (last * self.light[c]);
                     (r.is_finite() && r > 0.0).then_some(r)
                 })
                 .collect();
@@ -392,20 +392,23 @@ impl Labeler {
         })
     }
 
-    /// Whether detections `det` (cam0, cam1) keep the contrast of marker `i`'s dot, as
-    /// [`super::LabelParams::kept_contrast_ratio`] asks of a marker labeled within the
-    /// last [`SIZE_MEMORY_MIN_GAP_FRAMES`] frames: not fainter than that share of its
-    /// dot's at its last label, times the frame's change of light (`Labeler::light`),
-    /// in both cameras. True for other markers, while the change of light is not known
-    /// (the pose pass, the acquisition), and for a detector that does not measure
-    /// contrast.
-    pub(super) fn kept_its_contrast(&self, i: usize, det: [usize; 2]) -> bool {
+    /// Whether detections `det` (cam0, cam1) at `point` keep the ink of marker `i`'s dot,
+    /// as [`super::LabelParams::kept_contrast_ratio`] asks of a marker labeled within the
+    /// last [`SIZE_MEMORY_MIN_GAP_FRAMES`] frames: not both fainter than that share of
+    /// its dot's contrast at its last label, times the change of light since
+    /// (`Labeler::light`), in both cameras, and smaller than a first sighting may be
+    /// ([`Labeler::smaller_than_a_whole_dot`]). A dot in a shadow that fell on part of
+    /// the face is fainter but whole; a dot partly hidden is smaller but dark. True for
+    /// other markers, while this frame's change of light is not known (the pose pass, the
+    /// acquisition, too few markers tracked), and where contrast is not measured.
+    pub(super) fn kept_its_contrast(&self, i: usize, point: &Point3<f64>, det: [usize; 2]) -> bool {
         let share = self.params.kept_contrast_ratio;
         let t = &self.tracks[i];
         let Some(last) = t.contrast_dn else {
             return true;
         };
         if share <= 0.0
+            || !self.light_measured
             || t.frames_since_seen
                 .is_none_or(|n| n >= SIZE_MEMORY_MIN_GAP_FRAMES)
         {
@@ -420,7 +423,7 @@ impl Labeler {
                     (now * last[c] * light).is_finite() && now < share * light * last[c]
                 })
         };
-        !(fainter(0) && fainter(1))
+        !(fainter(0) && fainter(1) && self.smaller_than_a_whole_dot(point, det))
     }
 
     /// Whether detections `det` (cam0, cam1) are as round as a dot at `point` with the
@@ -825,9 +828,20 @@ impl Labeler {
         // Pass 1: wide gates, labels used only to estimate the head pose of this frame
         // and its change of light.
         let wide = self.predictions(&predicted, steps, self.params.pose_pass_extra_gate_px);
-        self.light = [f64::NAN; 2];
+        self.light_measured = false;
         let first = self.label_pass(&wide, pixels);
-        self.light = self.change_of_light(&first.labels);
+        let change = self.change_of_light(&first.labels);
+        self.light_measured = change.iter().all(|c| c.is_finite());
+        if self.light_measured {
+            for (light, change) in self.light.iter_mut().zip(change) {
+                let next = *light * change;
+                *light = if next.is_finite() && next > 0.0 {
+                    next
+                } else {
+                    1.0
+                };
+            }
+        }
         let pose = self
             .estimate_pose(&first.labels)
             .map_or(predicted, |(pose, _)| pose);
@@ -900,7 +914,7 @@ impl Labeler {
             if !l.confident && !self.doubt_told_by_size(l, wide, pixels, &done) {
                 continue;
             }
-            if !self.kept_its_contrast(i, l.det) {
+            if !self.kept_its_contrast(i, &l.bundle.point_in_cam0, l.det) {
                 continue;
             }
             if let (Some(x0), Some(x1)) = (pixels[0][l.det[0]], pixels[1][l.det[1]])
@@ -1573,7 +1587,7 @@ impl Labeler {
                     && (self.tracks[i].frames_since_seen.is_some()
                         || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]))
                     && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b])
-                    && self.kept_its_contrast(i, [a, b]);
+                    && self.kept_its_contrast(i, &bundle.point_in_cam0, [a, b]);
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
