@@ -2306,47 +2306,59 @@ fn a_marker_never_seen_is_labeled_only_once_found_in_consecutive_frames() {
     assert_eq!(moles_shown, 5 * hidden.len());
 }
 
-#[test]
-fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
-    // Markers hidden from the first frame (dots wiped off before the take), each with a
-    // mole 2 mm from its place in every frame: round, filled, two thirds of a dot's size
-    // in both cameras — within the first sighting's size range, which allows for every
-    // rig's rim and blur, but a third smaller than the neighbours' dots measured by the
-    // same lens. From frame 20 their dots are painted on again, beside the moles. The
-    // moles are never labeled, the dots are; without the rule the moles are taken.
+/// Six markers hidden from the first frame (dots wiped off before the take), each with a
+/// round, filled mole `mole_mm` from its place and `mole_size` times a dot's size in every
+/// frame; from frame 20 their dots are painted on again, beside the moles. Labeled with
+/// `params`: the wrong labels over 26 frames, and how many of the six the last labels.
+fn never_seen_beside_moles(
+    params: LabelParams,
+    mole_mm: f64,
+    mole_size: f64,
+    seed: u64,
+) -> (usize, usize) {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(15);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
     let hidden = [6, 19, 33, 48, 61, 77];
-    let moles: Vec<Point3<f64>> = hidden.iter().map(|&k| beside(&pts[k], 2.0)).collect();
-    let run = |share: f64| -> (usize, usize) {
+    let moles: Vec<Point3<f64>> = hidden.iter().map(|&k| beside(&pts[k], mole_mm)).collect();
+    let mut lab = labeler_with_params(&layout, &pts, params);
+    let mut rng = Rng::new(seed);
+    let (mut wrong_total, mut back) = (0, 0);
+    for f in 0..26usize {
+        let hide = if f < 20 { hidden.to_vec() } else { Vec::new() };
+        let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
+        for mole in &moles {
+            add_blob(&rig, &pose, &mut obs, mole, |dot_px| {
+                (mole_size * dot_px, 0.95, 1.0)
+            });
+        }
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        wrong_total += count(&out, &truth).1;
+        if f == 25 {
+            back = labeled_among(&out, &hidden);
+        }
+    }
+    (wrong_total, back)
+}
+
+#[test]
+fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
+    // Moles 2 mm from the hidden markers' places (`never_seen_beside_moles`), two thirds
+    // of a dot's size in both cameras: within the first sighting's size range, which
+    // allows for every rig's rim and blur, but a third smaller than the neighbours' dots
+    // measured by the same lens. The moles are never labeled, the painted dots are;
+    // without the rule the moles are taken.
+    let run = |share: f64| {
         let params = LabelParams {
             never_seen_min_relative_size: share,
             ..LabelParams::default()
         };
-        let mut lab = labeler_with_params(&layout, &pts, params);
-        let mut rng = Rng::new(115);
-        let (mut wrong_total, mut back) = (0, 0);
-        for f in 0..26usize {
-            let hide = if f < 20 { hidden.to_vec() } else { Vec::new() };
-            let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
-            for mole in &moles {
-                add_blob(&rig, &pose, &mut obs, mole, |dot_px| {
-                    (2.0 / 3.0 * dot_px, 0.95, 1.0)
-                });
-            }
-            let truth = [obs[0].1.clone(), obs[1].1.clone()];
-            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
-            wrong_total += count(&out, &truth).1;
-            if f == 25 {
-                back = labeled_among(&out, &hidden);
-            }
-        }
-        (wrong_total, back)
+        never_seen_beside_moles(params, 2.0, 2.0 / 3.0, 115)
     };
     let (wrong, back) = run(LabelParams::default().never_seen_min_relative_size);
     assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    assert_eq!(back, hidden.len(), "the painted dots were not all labeled");
+    assert_eq!(back, 6, "the painted dots were not all labeled");
     let (wrong, _) = run(0.0);
     assert!(
         wrong > 0,
@@ -2356,45 +2368,22 @@ fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
 
 #[test]
 fn a_mole_larger_than_a_dot_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
-    // As above, but each mole is 2.5 mm from its marker's place and 1.4 times a dot's size
-    // in both cameras (lip-press seed 901's case: a 3.8 mm mole beside a dot that one
-    // camera saw edge-on): within the first sighting's size range, which allows 2 px for
-    // any rig's rim and blur, but larger than the neighbours' dots alike in both cameras.
-    // From frame 20 the dots are painted on again, beside the moles. The moles are never
-    // labeled, the dots are; without the rule the moles are taken.
-    let rig = crate::camera::default_helmet_rig().unwrap();
-    let (layout, pts) = face(15);
-    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let hidden = [6, 19, 33, 48, 61, 77];
-    let moles: Vec<Point3<f64>> = hidden.iter().map(|&k| beside(&pts[k], 2.5)).collect();
-    let run = |share: f64| -> (usize, usize) {
+    // Moles 2.5 mm from the hidden markers' places (`never_seen_beside_moles`), 1.4
+    // times a dot's size in both cameras (lip-press seed 901's case: a 3.8 mm mole beside
+    // a dot that one camera saw edge-on): within the first sighting's size range, which
+    // allows 2 px for any rig's rim and blur, but larger than the neighbours' dots alike
+    // in both cameras. The moles are never labeled, the painted dots are; without the
+    // rule the moles are taken.
+    let run = |share: f64| {
         let params = LabelParams {
             never_seen_max_relative_size: share,
             ..LabelParams::default()
         };
-        let mut lab = labeler_with_params(&layout, &pts, params);
-        let mut rng = Rng::new(116);
-        let (mut wrong_total, mut back) = (0, 0);
-        for f in 0..26usize {
-            let hide = if f < 20 { hidden.to_vec() } else { Vec::new() };
-            let mut obs = observe(&rig, &pose, &pts, &hide, 0.15, 0, &mut rng);
-            for mole in &moles {
-                add_blob(&rig, &pose, &mut obs, mole, |dot_px| {
-                    (1.4 * dot_px, 0.95, 1.0)
-                });
-            }
-            let truth = [obs[0].1.clone(), obs[1].1.clone()];
-            let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
-            wrong_total += count(&out, &truth).1;
-            if f == 25 {
-                back = labeled_among(&out, &hidden);
-            }
-        }
-        (wrong_total, back)
+        never_seen_beside_moles(params, 2.5, 1.4, 116)
     };
     let (wrong, back) = run(LabelParams::default().never_seen_max_relative_size);
     assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    assert_eq!(back, hidden.len(), "the painted dots were not all labeled");
+    assert_eq!(back, 6, "the painted dots were not all labeled");
     let (wrong, _) = run(0.0);
     assert!(
         wrong > 0,
