@@ -604,6 +604,11 @@ fn never_panics_on_garbage_and_recovers() {
     assert_eq!(count(&out, &truth).1, 0);
 }
 
+/// Whether `made` is a refusal of the parameters that names `key`.
+fn refused_naming(made: Result<Labeler, LabelError>, key: &str) -> bool {
+    matches!(made, Err(LabelError::Params(e)) if e.to_string().contains(key))
+}
+
 #[test]
 fn rejects_bad_construction() {
     let rig = crate::camera::default_helmet_rig().unwrap();
@@ -643,9 +648,8 @@ fn rejects_bad_construction() {
         assert_eq!(made.is_ok(), ok, "never_seen_max_relative_size = {share}");
         if !ok {
             assert!(
-                matches!(&made, Err(LabelError::Params(e)) if e.to_string().contains("never_seen_max_relative_size")),
-                "{:?}",
-                made.err()
+                refused_naming(made, "never_seen_max_relative_size"),
+                "{share}"
             );
         }
     }
@@ -654,8 +658,9 @@ fn rejects_bad_construction() {
             kept_contrast_ratio: share,
             ..Default::default()
         };
+        let made = Labeler::new(rig.clone(), &layout, pts.clone(), p);
         assert!(
-            matches!(Labeler::new(rig.clone(), &layout, pts.clone(), p), Err(LabelError::Params(e)) if e.to_string().contains("kept_contrast_ratio")),
+            refused_naming(made, "kept_contrast_ratio"),
             "kept_contrast_ratio = {share}"
         );
     }
@@ -2397,8 +2402,9 @@ fn a_freckle_under_a_wiped_dot_is_not_taken_for_its_marker() {
     // freckle 0.4 mm from its centre, 0.4 of a dot's size (smaller than a first sighting
     // may be: on this rig's 7 px dots a blob half a dot's size is within the first
     // sighting's 2 px for the rim) and a third of its contrast (wiped-moles seed 912's
-    // M096: 0.56-0.61 of its 16-19 px dot, 0.37), inside the marker's gate. The freckles are never labeled; without the
-    // rule they are, until the marker's blobs have been small for `SMALL_BLOB_FRAMES`.
+    // M096: 0.56-0.61 of its 16-19 px dot, 0.37), inside the marker's gate. The freckles
+    // are never labeled; without the rule they are, until the marker's blobs have been
+    // small for `SMALL_BLOB_FRAMES`.
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(17);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
@@ -2585,10 +2591,11 @@ fn a_mole_where_a_marker_gone_for_long_should_be_is_not_taken_for_it() {
 fn a_dot_back_whole_after_sinking_behind_the_lip_is_labeled() {
     // Markers tracked on whole dots for ten frames, then on blobs 0.6 of a dot in both
     // cameras for three (dots sinking behind the lip: still labeled, smaller than a first
-    // sighting may be; their ink 0.8 as contrasty as the whole dot's, as lip-press slivers
-    // keep in one camera at least), hidden for fifteen, and back whole. The size a marker coming back
-    // must match (`LabelParams::returning_max_size_change`) is its last whole dot's, not
-    // its last sliver's: the dots are labeled again within two frames.
+    // sighting may be; their ink 0.8 as contrasty as the whole dot's, as lip-press
+    // slivers keep in one camera at least), hidden for fifteen, and back whole. The size
+    // a marker coming back must match (`LabelParams::returning_max_size_change`) is its
+    // last whole dot's, not its last sliver's: the dots are labeled again within two
+    // frames.
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(17);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
