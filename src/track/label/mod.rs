@@ -270,7 +270,7 @@ pub struct LabelParams {
     /// blur) lets such a mole pass. Default 1.3: on lip-press seed 901 a 3.8 mm mole
     /// beside a dot seen at 71° and 81° from the cameras measured 1.38-1.44 of the
     /// neighbours' dots in one camera and 1.40-1.46 in the other (labeled for 56 frames);
-    /// over 72 set-ups of every preset, 1.2 cost up to 0.25 points of labeled markers on
+    /// over 72 set-ups of every preset, 1.2 cost up to 0.24 points of labeled markers on
     /// four, 1.3 and 1.35 two marker-frames on one (a dot merged with a blob at the
     /// acquisition).
     pub never_seen_max_relative_size: f64,
