@@ -453,17 +453,20 @@ fn a_lip_dot_moved_with_its_mole_is_not_followed_on_the_mole() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// A `lip-press` set-up whose lip dot, seen 80° from cam0, once was labeled between
-/// itself and the mole beside it for 11 frames, 6.4 px off: its blob touched the mole a
-/// frame early, pulling the label and the prediction after it, and then was one 30 px
-/// streak only 3.6 px off that prediction (seed 7, M060; see `Labeler::grew_past_a_dot`).
-/// Its labeled share is below the goal (another marker, M008, merged with a mole in cam1,
-/// is missed throughout): only wrong labels are counted.
-const LIP_PRESS_MERGED_SET_UPS: [(u64, usize); 1] = [(7, 30)];
+/// `lip-press` set-ups with dots merged with a mole beside them. Seed 7: a lip dot seen
+/// 80° from cam0 once was labeled between itself and the mole for 11 frames, 6.4 px off:
+/// its blob touched the mole a frame early, pulling the label and the prediction after it,
+/// and then was one 30 px streak only 3.6 px off that prediction (M060; see
+/// `Labeler::grew_past_a_dot`); and M008, merged with a mole in cam1 only, was missed
+/// throughout. Seed 902: M044, merged with a larger mole in one camera and then in both,
+/// was missed throughout; taken at its lobe in one camera and at its dot in the other, it
+/// once was followed onto the two blobs' centres, 10 px off, for three frames (frames
+/// 12-14; see `Labeler::merged_dot`).
+const LIP_PRESS_MERGED_SET_UPS: [(u64, usize); 2] = [(7, 30), (902, 20)];
 
 #[test]
 fn a_lip_dot_merged_with_its_mole_is_not_labeled_between_the_two() {
-    let failures = set_up_failures("lip-press", &LIP_PRESS_MERGED_SET_UPS, 0.0);
+    let failures = set_up_failures("lip-press", &LIP_PRESS_MERGED_SET_UPS, 0.99);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
@@ -480,11 +483,11 @@ fn a_mole_larger_than_a_dot_beside_an_edge_on_dot_is_not_taken_for_it() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
-/// `lip-press` set-ups on which markers are still labeled on the wrong spot (run with
-/// `--ignored`; README, "Capture presets"): a dot seen nearly edge-on (about 80° from
-/// the cameras) beside a mole that looks as thin, labeled on the mole, or on the two
-/// merged, 5-9 px from the dot's place in the camera that sees it most edge-on (seeds 3
-/// and 4).
+/// `lip-press` set-ups below the goal (run with `--ignored`; README, "Capture presets"):
+/// on seed 3 a dot seen nearly edge-on (81° from cam0) beside a mole that looks as thin
+/// is still labeled on the mole, or on the two merged, 5-9 px from the dot's place in
+/// cam0 (five marker-frames); seed 4 has no wrong label since dots merged with a mole in
+/// one camera are labeled at their lobe (three before), but 98.1 % labeled.
 const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 2] = [(3, 120), (4, 120)];
 
 #[test]
