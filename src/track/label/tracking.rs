@@ -67,8 +67,8 @@ const MERGED_DOT_RATIO: f64 = 1.25;
 /// half, but not past a whole dot; a smeared dot is long but stays so.
 const MERGED_GROWTH: f64 = 1.5;
 
-/// See `Labeler::grew_past_a_dot`: a blob that grew by `g` on one side has its centre
-/// `g/2` off the dot's.
+/// See `Labeler::grew_past_a_dot` and `Labeler::a_piece_off_its_blob`: a blob that grew
+/// or shrank by `g` on one side has its centre `g/2` off where it was.
 const MERGED_SHIFT: f64 = 0.25;
 
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
@@ -626,11 +626,16 @@ impl Labeler {
 
     /// Whether marker `i`'s blobs `det` (at `x`), where it was labeled in the last frame
     /// and is predicted at `pr`, are in either camera a piece of its last blob off its
-    /// place: shorter than [`WHOLE_BLOB_MIN_LENGTH_RATIO`] of the last blob and beyond
+    /// place: shorter than [`WHOLE_BLOB_MIN_LENGTH_RATIO`] of the last blob, and beyond
     /// the tight gate of the prediction (inside the marker's gate only as that gate was
-    /// widened by its motion or a merged blob's lobes). A long blob (a smeared dot) that
-    /// split leaves pieces up to half its length off the ink's centre; on cluttered seed 77
-    /// one 10 px off a 25 px smear was taken.
+    /// widened by its motion or a merged blob's lobes) or off the last label by at least
+    /// [`MERGED_SHIFT`] of the length lost (and 2 px): it shrank on one side, as a blob
+    /// that grew on one side grew ([`Labeler::grew_past_a_dot`]). A long blob (a smeared
+    /// dot) that split leaves pieces up to half its length off the ink's centre; on
+    /// cluttered seed 77 one 10 px off a 25 px smear was taken. On lip-press seed 3, M076's
+    /// dot and a mole beside it, both seen 81° from cam0, made one 22 px blob there that
+    /// the marker was tracked at; when they parted, the mole alone, 4 px from the last
+    /// label, was taken for four frames, 8-9 px off the dot.
     pub(super) fn a_piece_off_its_blob(
         &self,
         i: usize,
@@ -638,9 +643,13 @@ impl Labeler {
         det: [usize; 2],
         x: [Point2<f64>; 2],
     ) -> bool {
+        let last = self.last_labels(i);
         self.against_last_blob(i, pr, det, |c, blob, q, was| {
-            blob.diameter_px < WHOLE_BLOB_MIN_LENGTH_RATIO * was
-                && (x[c] - q).norm() > self.params.gate_px
+            let is = blob.diameter_px;
+            let shift = last.map_or(0.0, |last| (x[c] - last[c]).norm());
+            is < WHOLE_BLOB_MIN_LENGTH_RATIO * was
+                && ((x[c] - q).norm() > self.params.gate_px
+                    || shift >= (MERGED_SHIFT * (was - is)).max(2.0))
         })
     }
 
