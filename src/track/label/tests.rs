@@ -1610,6 +1610,28 @@ fn tracking_a_still_face(seed: u64) -> (Labeler, usize) {
     (lab, k)
 }
 
+/// Both cameras' shapes of blobs of the given lengths (major axes, pixels), as filled
+/// ellipses of `roundness`: for the rules that compare a marker's blob with its last one.
+fn blobs_of_lengths(lengths: &[f64], roundness: f64) -> [Vec<BlobShape>; 2] {
+    let shapes: Vec<BlobShape> = lengths
+        .iter()
+        .map(|&diameter_px| {
+            BlobShape::of(&Detection {
+                centre_px: Point2::origin(),
+                area_px: (std::f64::consts::FRAC_PI_4 * diameter_px * diameter_px * roundness)
+                    as usize,
+                roundness,
+                contrast_dn: 60.0,
+                quality: 0.4,
+                diameter_px,
+                axis_rad: 0.0,
+                streak: false,
+            })
+        })
+        .collect();
+    [shapes.clone(), shapes]
+}
+
 #[test]
 fn a_piece_of_a_markers_last_blob_off_its_prediction_is_told() {
     // A marker labeled in the last frame on blobs 24 px long: a blob 10 px long 8 px from
@@ -1620,19 +1642,7 @@ fn a_piece_of_a_markers_last_blob_off_its_prediction_is_told() {
     lab.seen_before.as_mut().unwrap().marker_blobs_px[k] = Some([24.0, 24.0]);
     let pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
     let q = pr.pixels.map(Option::unwrap);
-    let blob = |diameter_px: f64| {
-        BlobShape::of(&Detection {
-            centre_px: Point2::origin(),
-            area_px: 60,
-            roundness: 0.7,
-            contrast_dn: 60.0,
-            quality: 0.4,
-            diameter_px,
-            axis_rad: f64::NAN,
-            streak: false,
-        })
-    };
-    lab.blobs = [vec![blob(10.0), blob(22.0)], vec![blob(10.0), blob(22.0)]];
+    lab.blobs = blobs_of_lengths(&[10.0, 22.0], 0.7);
     let off = |dx: f64| q.map(|q| q + Vector2::new(dx, 0.0));
     assert!(lab.a_piece_off_its_blob(k, &pr, [0, 0], off(8.0)));
     assert!(!lab.a_piece_off_its_blob(k, &pr, [1, 1], off(8.0)));
@@ -1654,19 +1664,7 @@ fn a_piece_of_a_markers_last_blob_that_shrank_on_one_side_is_told() {
     let seen = lab.seen_before.as_mut().unwrap();
     seen.marker_blobs_px[k] = Some([22.0, 22.0]);
     seen.markers[k] = Some(q);
-    let blob = |diameter_px: f64| {
-        BlobShape::of(&Detection {
-            centre_px: Point2::origin(),
-            area_px: 40,
-            roundness: 0.25,
-            contrast_dn: 45.0,
-            quality: 0.2,
-            diameter_px,
-            axis_rad: 0.0,
-            streak: false,
-        })
-    };
-    lab.blobs = [vec![blob(14.0), blob(20.0)], vec![blob(14.0), blob(20.0)]];
+    lab.blobs = blobs_of_lengths(&[14.0, 20.0], 0.25);
     let off = |dx: f64| q.map(|q| q + Vector2::new(dx, 0.0));
     assert!(lab.a_piece_off_its_blob(k, &pr, [0, 0], off(4.2)));
     assert!(!lab.a_piece_off_its_blob(k, &pr, [0, 0], off(0.5)));
