@@ -411,6 +411,21 @@ fn moles_where_markers_were_wiped_off_are_not_taken_on_more_set_ups() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// A `wiped-moles` set-up (made after the preset, never tuned on) with a wrong label left
+/// (run with `--ignored`): M102, wiped at frame 40, is taken from frame 44 on a mole 1.35
+/// dots large 22 px above where its dot was. Back after a 4-frame gap, its neighbours put it
+/// 18 px (cam0) and 32 px (cam1) above its place (the jaw opens, they do not follow), and
+/// the mole lies inside that gate; the gap is too short for the dot's remembered size to be
+/// asked (`SIZE_MEMORY_MIN_GAP_FRAMES`), and the mole is as dark as ink.
+const WIPED_MOLES_KNOWN_WRONG: [(u64, usize); 1] = [(1301, 60)];
+
+#[test]
+#[ignore = "a known wrong label on wiped-moles seed 1301 (see WIPED_MOLES_KNOWN_WRONG)"]
+fn a_mole_where_a_neighbour_put_a_wiped_marker_is_not_taken_for_it() {
+    let failures = set_up_failures("wiped-moles", &WIPED_MOLES_KNOWN_WRONG, 0.99);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
 /// Renders and replays set-ups (seed, frames) of `preset` and lists those with a wrong
 /// label or under `min_share` of the detectable markers labeled (0: wrong labels only).
 fn set_up_failures(preset: &str, set_ups: &[(u64, usize)], min_share: f64) -> Vec<String> {
