@@ -499,11 +499,12 @@ fn a_mole_larger_than_a_dot_beside_an_edge_on_dot_is_not_taken_for_it() {
 }
 
 /// A `lip-press` set-up whose lip dot, seen 81° from cam0, made one blob there with a mole
-/// beside it that looked as thin: labeled on the two merged, 4.5 px from the dot's place in
-/// cam0, for most of the take (11 labels more than 5 px off, where the mole alone was
-/// taken), until labels went only to a dot merged in one camera at its lobe (see
-/// `Labeler::merged_dot`) and a blob that shrank on one side was told as a piece of the
-/// last (seed 3, M076; see `Labeler::a_piece_off_its_blob`). Frames: past the last of those.
+/// beside it that looked as thin: it was labeled on the two merged, 4.5 px from the dot's
+/// place in cam0, for most of the take, and on the mole alone, 8-9 px off, once they parted
+/// (seed 3, M076; 11 wrong labels on the set-up). Gone since a dot merged with a mole in
+/// one camera is labeled at its lobe (`Labeler::merged_dot`) and a blob that shrank on one
+/// side is told as a piece of the last one (`Labeler::a_piece_off_its_blob`). Frames: past
+/// the last of those.
 const LIP_PRESS_EDGE_ON_SET_UPS: [(u64, usize); 1] = [(3, 72)];
 
 #[test]
