@@ -2444,6 +2444,28 @@ fn a_marker_never_seen_is_labeled_only_once_found_in_consecutive_frames() {
     assert_eq!(moles_shown, 5 * hidden.len());
 }
 
+/// Checks a labeling rule on a scene: `run(value)` labels the scene with the rule's
+/// setting at `value` and gives its wrong labels and how many of the `expected` markers
+/// it looks at (`labeled`) were labeled. At the rule's `default`: no wrong label, all of
+/// them labeled; with the rule off (0): wrong labels (the `taken` blobs), so that the
+/// scene needs the rule.
+fn check_rule_on_scene(
+    run: impl Fn(f64) -> (usize, usize),
+    default: f64,
+    expected: usize,
+    labeled: &str,
+    taken: &str,
+) {
+    let (wrong, found) = run(default);
+    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
+    assert_eq!(found, expected, "the {labeled} were not all labeled");
+    let (wrong, _) = run(0.0);
+    assert!(
+        wrong > 0,
+        "without the rule the {taken} are not taken: the test shows nothing"
+    );
+}
+
 /// Six markers hidden from the first frame (dots wiped off before the take), each with a
 /// round, filled mole `mole_mm` from its place and `mole_size` times a dot's size in every
 /// frame; from frame 20 their dots are painted on again, beside the moles. Labeled with
@@ -2494,14 +2516,8 @@ fn a_mole_where_a_never_seen_marker_should_be_is_not_taken_for_it() {
         };
         never_seen_beside_moles(params, 2.0, 2.0 / 3.0, 115)
     };
-    let (wrong, back) = run(LabelParams::default().never_seen_min_relative_size);
-    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    assert_eq!(back, 6, "the painted dots were not all labeled");
-    let (wrong, _) = run(0.0);
-    assert!(
-        wrong > 0,
-        "without the rule the moles are not taken: the test shows nothing"
-    );
+    let default = LabelParams::default().never_seen_min_relative_size;
+    check_rule_on_scene(run, default, 6, "painted dots", "moles");
 }
 
 #[test]
@@ -2519,14 +2535,8 @@ fn a_mole_larger_than_a_dot_where_a_never_seen_marker_should_be_is_not_taken_for
         };
         never_seen_beside_moles(params, 2.5, 1.4, 116)
     };
-    let (wrong, back) = run(LabelParams::default().never_seen_max_relative_size);
-    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    assert_eq!(back, 6, "the painted dots were not all labeled");
-    let (wrong, _) = run(0.0);
-    assert!(
-        wrong > 0,
-        "without the rule the moles are not taken: the test shows nothing"
-    );
+    let default = LabelParams::default().never_seen_max_relative_size;
+    check_rule_on_scene(run, default, 6, "painted dots", "moles");
 }
 
 #[test]
@@ -2571,17 +2581,13 @@ fn a_freckle_under_a_wiped_dot_is_not_taken_for_its_marker() {
         }
         (wrong_total, tracked)
     };
-    let (wrong, tracked) = run(LabelParams::default().kept_contrast_ratio);
-    assert_eq!(
-        tracked,
+    let default = LabelParams::default().kept_contrast_ratio;
+    check_rule_on_scene(
+        run,
+        default,
         wiped.len(),
-        "the dots were not all tracked before the wipe"
-    );
-    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    let (wrong, _) = run(0.0);
-    assert!(
-        wrong > 0,
-        "without the rule the freckles are not taken: the test shows nothing"
+        "dots before the wipe",
+        "freckles",
     );
 }
 
@@ -2710,14 +2716,8 @@ fn a_mole_where_a_marker_gone_for_long_should_be_is_not_taken_for_it() {
         }
         (wrong_total, back)
     };
-    let (wrong, back) = run(LabelParams::default().returning_max_size_change);
-    assert_eq!(wrong, 0, "{wrong} wrong labels with the rule");
-    assert_eq!(back, wiped.len(), "the painted dots were not all labeled");
-    let (wrong, _) = run(0.0);
-    assert!(
-        wrong > 0,
-        "without the rule the moles are not taken: the test shows nothing"
-    );
+    let default = LabelParams::default().returning_max_size_change;
+    check_rule_on_scene(run, default, wiped.len(), "painted dots", "moles");
 }
 
 #[test]
