@@ -59,9 +59,11 @@
 //! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
 //! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
-//! it is not taken for it ([`Labeler::stood_beside`]). Nor is a mole that was one blob
-//! with the dot: a blob whose second moments are a dot's plus one direction's is a dot
-//! merged with a blob beside it ([`Labeler::far_lobe`]); the lobe nearer to where the
+//! it is not taken for it ([`Labeler::stood_beside`]); nor, after a short gap, is a blob
+//! beyond its gate of where the dot was last seen that was there in the last frame (a dot
+//! back soon is where it was, or new: [`Labeler::stayed_while_gone`]). Nor is a mole that
+//! was one blob with the dot: a blob whose second moments are a dot's plus one direction's
+//! is a dot merged with a blob beside it ([`Labeler::far_lobe`]); the lobe nearer to where the
 //! neighbours put the marker is the dot, where the marker is labeled (at a first
 //! sighting, unless the other lobe is within a rival's reach; a marker tracked onto such
 //! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
