@@ -71,6 +71,14 @@ const MERGED_GROWTH: f64 = 1.5;
 /// or shrank by `g` on one side has its centre `g/2` off where it was.
 const MERGED_SHIFT: f64 = 0.25;
 
+/// A marker tracked at a lobe of its blob in a camera whose blob there shows no lobes
+/// now, but is at least this share of its last frame's length, is still merged (see
+/// `Labeler::still_merged`): its lobes' reading is near its limits, as the lobes' spread
+/// and the expected dot's shape change a little from frame to frame; a dot parted from the
+/// blob beside it is a dot's length, at most 1/(1 + 2·[`LOBE_MIN_OFFSET_RATIO`]) of the
+/// merged blob's.
+const STILL_MERGED_LENGTH_RATIO: f64 = 0.9;
+
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
 /// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
 /// `Labeler::far_lobe`): a lone dot 10 % larger than the profile says looks like lobes
@@ -1191,6 +1199,25 @@ impl Labeler {
             .then_some((u, half_apart))
     }
 
+    /// Whether detections `det` at `point`, predicted by `pr`, read in both cameras as a
+    /// dot merged with a blob beside it ([`Labeler::lobe_split`]), lobes farther apart than
+    /// the image motion since the last frame could smear one dot: not one dot, whatever its
+    /// size. A first sighting, or a marker tracked at a lobe of such a blob, is not taken
+    /// at its centre, between the dot and the blob beside it (lip-press seed 1401's M085,
+    /// half hidden by the lip and merged with a mole of its size, was labeled there, 6-8 px
+    /// off, in 9 frames), but at a lobe or not at all ([`Labeler::merged_dot`]).
+    fn two_discs_in_both(&self, point: &Point3<f64>, pr: &Prediction, det: [usize; 2]) -> bool {
+        let Some(normal) = pr.normal else {
+            return false;
+        };
+        (0..2).all(|c| {
+            self.lobe_split(point, &normal, c, det[c])
+                .is_some_and(|(_, half_apart)| {
+                    half_apart > 0.5 * self.params.gate_px && 2.0 * half_apart > pr.motion_px[c]
+                })
+        })
+    }
+
     /// Moves the tracks of markers labeled at the centre of a blob that has had about the
     /// same lobes for [`LOBE_MIN_FRAMES`] labels ([`Labeler::far_lobe`]: a dot that a mole
     /// came to touch, a first sighting before the neighbours were tracked) onto the dot's
@@ -1234,9 +1261,11 @@ impl Labeler {
     /// taken only there) the lobe within [`Labeler::worn_dot_tolerance_px`] of where the
     /// neighbours put the marker; for a marker tracked on such a blob, within the tight
     /// gate of its prediction. The label is at the lobes, not at the blob's centre between
-    /// the dot and the mole. None without the skin's normal, and for a first sighting
-    /// whose far lobe is, in both cameras, within the reach of a rival beyond the gate
-    /// (as in `Labeler::label_pass`) of where the neighbours put the marker.
+    /// the dot and the mole. None without the skin's normal, for a first sighting whose
+    /// far lobe is, in both cameras, within the reach of a rival beyond the gate (as in
+    /// `Labeler::label_pass`) of where the neighbours put the marker, and for a marker
+    /// tracked at a lobe whose blob shows no lobes in a camera but is still one with the
+    /// blob beside the dot there ([`Labeler::still_merged`]).
     ///
     /// The dot and the mole may touch in one camera only (seen from the other, the mole
     /// lies beyond the dot's rim, or the two cameras' foreshortening differ): in the other
@@ -1249,6 +1278,7 @@ impl Labeler {
     /// labeled in 60 frames.
     pub(super) fn merged_dot(
         &self,
+        i: usize,
         pr: &Prediction,
         det: [usize; 2],
         x: [Point2<f64>; 2],
@@ -1268,7 +1298,10 @@ impl Labeler {
         for c in 0..2 {
             let q = anchor[c]?;
             let far = self.far_lobe(&point, &normal, c, det[c], x[c], q);
-            if far.is_none() && !self.whole_dot_in(c, &point, &normal, det[c], pr) {
+            if far.is_none()
+                && (self.still_merged(i, pr, c, det[c])
+                    || !self.whole_dot_in(c, &point, &normal, det[c], pr))
+            {
                 return None;
             }
             let near = x[c] - far.unwrap_or_else(Vector2::zeros);
@@ -1321,6 +1354,27 @@ impl Labeler {
                 (!far_pairs).then_some(at)
             }
         }
+    }
+
+    /// Whether marker `i`, tracked at a lobe of its blob in camera `c` in the last frame
+    /// (`pr.merged`, and a far lobe remembered there), has in detection `det` a blob at
+    /// least [`STILL_MERGED_LENGTH_RATIO`] of that blob's length: the dot and the blob
+    /// beside it are still one, even where its lobes are not read this frame, and the
+    /// blob is not a whole dot there ([`Labeler::merged_dot`]). Taken at its centre, such
+    /// a blob puts the label between the two (lip-press seed 1401's M085, its blob 26.8 px
+    /// long in both frames, was labeled 8 px off in cam0 for two frames when its lobes were
+    /// not read there).
+    fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
+        let last = self
+            .seen_before
+            .as_ref()
+            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten());
+        pr.merged
+            && self.lobes.get(i).is_some_and(|l| l[c].is_some())
+            && match (last, self.blobs[c].get(det)) {
+                (Some(last), Some(blob)) => blob.diameter_px >= STILL_MERGED_LENGTH_RATIO * last[c],
+                _ => false,
+            }
     }
 
     /// Whether detection `det` in camera `c` is, by itself, a whole dot of the marker
@@ -1690,7 +1744,7 @@ impl Labeler {
             // whose blob grew on one side, as soon as it did, or not at all.
             let grew = !pr.first_sighting && self.grew_past_a_dot(i, pr, [a, b], [x0, x1]);
             if (pr.merged || pr.first_sighting || grew)
-                && let Some(at) = self.merged_dot(pr, [a, b], [x0, x1])
+                && let Some(at) = self.merged_dot(i, pr, [a, b], [x0, x1])
                 && let Some(bundle) = gated(at)
             {
                 return Some((bundle, Fit::Merged(at)));
@@ -1739,6 +1793,8 @@ impl Labeler {
                     },
                 ) && self.round_enough(&bundle.point_in_cam0, pr.normal.as_ref(), [a, b])
                     && (!pr.first_sighting || self.filled_like_a_dot([a, b]))
+                    && !((pr.first_sighting || pr.merged)
+                        && self.two_discs_in_both(&bundle.point_in_cam0, pr, [a, b]))
                     && (self.tracks[i].frames_since_seen.is_some()
                         || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]))
                     && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b])
