@@ -518,3 +518,21 @@ fn lip_press_set_ups_below_the_goal_reach_it() {
     let failures = set_up_failures("lip-press", &LIP_PRESS_BELOW_GOAL, 0.99);
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// A `lip-press` set-up (made after the preset and every rule, never tuned on) with wrong
+/// labels left (run with `--ignored`; README, "A mole that took a lip dot's place"): M054,
+/// a lower-lip dot lost at frame 56 as the press moved it 15 px a frame, is taken at frame
+/// 65, back from a 9-frame gap and moving 16 px a frame, on a mole as dark as ink that the
+/// lip carried to where the dot was last labeled, 22 px below the dot, and followed on it
+/// to the end (55 frames). The mole lay beyond the search window while the dot was tracked
+/// (never remembered beside it) and is within the gate of the dot's last label (the
+/// short-gap rule sees nothing wrong); the gap is one frame short of the size memory.
+/// Also M102, labeled 8 px off in cam0 (1 px in cam1) in 11 frames, not looked at.
+const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 1] = [(1501, 120)];
+
+#[test]
+#[ignore = "known wrong labels on lip-press seed 1501 (see LIP_PRESS_KNOWN_WRONG)"]
+fn a_mole_the_lip_carried_where_its_dot_was_is_not_taken_for_it() {
+    let failures = set_up_failures("lip-press", &LIP_PRESS_KNOWN_WRONG, 0.99);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
