@@ -1493,18 +1493,18 @@ impl Labeler {
     /// label `label` (at a merged blob's lobe, or its centre), are a blob that lay beside
     /// the place where its dot went missing rather than the dot: the label beyond the
     /// marker's gate of where it was last labeled (`pr.last_seen`) in a camera, and the
-    /// blob in both there in the last frame already (a blob within half a tight gate of where it
-    /// came from, moved back with the head's motion since, or a place the detector did not
-    /// look at). A dot back after a short gap is where it was: of the 5,265 right returns after
-    /// gaps of 1-9 frames on 104 set-ups of every preset, all but three were within 6 px of
-    /// their last label (the farthest, 58 px, a lip dot out from behind the lip: a new
-    /// blob), and the rule refuses none of the three. Where its
-    /// neighbours put it may be far off by then (a chin dot under a jaw opening while the
-    /// neighbours hold still), and the gate of a marker coming back grows frame by frame
-    /// onto a mole that was beside the dot all along (wiped-moles seed 1301's M102, whose
-    /// paint was wiped off, taken from four frames later on a mole 22 px from its dot for
-    /// the rest of the take). Such a blob is still a rival, as a blob that stood beside
-    /// the dot ([`Labeler::stood_beside`]) is.
+    /// blob in both there in the last frame already (a blob within half a tight gate of
+    /// where it came from, moved back with the head's motion since, or a place the detector
+    /// did not look at). A dot back after a short gap is where it was: of the 5,265 right
+    /// returns after gaps of 1-9 frames on 104 set-ups of every preset, all but three were
+    /// within 6 px of their last label (the farthest, 58 px, a lip dot out from behind the
+    /// lip: a new blob), and the rule refuses none of the three. Where its neighbours put
+    /// it may be far off by then (a chin dot under a jaw opening while the neighbours hold
+    /// still), and the gate of a marker coming back grows frame by frame onto a mole that
+    /// was beside the dot all along (wiped-moles seed 1301's M102, whose paint was wiped
+    /// off, taken from four frames later on a mole 22 px from its dot for the rest of the
+    /// take). Such a blob is still a rival, as a blob that stood beside the dot
+    /// ([`Labeler::stood_beside`]) is.
     pub(super) fn stayed_while_gone(
         &self,
         i: usize,
