@@ -524,12 +524,12 @@ fn lip_press_set_ups_below_the_goal_reach_it() {
 /// a lower-lip dot lost at frame 56 as the press moved it 15 px a frame, is taken at frame
 /// 65, back from a 9-frame gap and moving 16 px a frame, on a mole as dark as ink that the
 /// lip carried to where the dot was last labeled, 22 px below the dot, and followed on it
-/// to the end (55 frames). The mole lay beyond the search window while the dot was tracked
-/// (never remembered beside it) and is within the gate of the dot's last label (the
+/// to the end (55 frames). The mole is within the gate of the dot's last label (the
 /// short-gap rule sees nothing wrong); the gap is one frame short of the size memory. The
-/// pose pass reached the dot and did not label it (why is not established), and the pass
-/// that looks where the marker was last seen took the mole. Also M102, labeled 8 px off in
-/// cam0 (1 px in cam1) in 11 frames, not looked at.
+/// pose pass reached the dot but refused it as a blob that stood beside the dot: from the
+/// neighbours' place, 17 px off, the dot sits at the mole's remembered offset; the pass that
+/// looks where the marker was last seen took the mole. Also M102, labeled 8 px off in cam0
+/// (1 px in cam1) in 11 frames, not looked at.
 const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 1] = [(1501, 120)];
 
 #[test]
