@@ -1672,6 +1672,80 @@ fn a_piece_of_a_markers_last_blob_that_shrank_on_one_side_is_told() {
 }
 
 #[test]
+fn a_blob_as_long_as_the_merged_blob_it_was_is_still_merged() {
+    // A marker tracked at the lobe of a 27 px blob (its dot and a mole in one; lip-press
+    // seed 1401's M085): a 26.8 px blob where its lobes are not read this frame is still
+    // the two, not a dot alone; a 20 px one (the dot parted from the mole) may be the dot.
+    // Nor is a marker that was not at a lobe, or had no far lobe in that camera, asked.
+    let (mut lab, k) = tracking_a_still_face(119);
+    let mut pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
+    pr.merged = true;
+    lab.seen_before.as_mut().unwrap().marker_blobs_px[k] = Some([27.0, 27.0]);
+    let lobes = Lobes {
+        from_label: Vector2::new(0.0, 10.0),
+        apart: Vector2::new(0.0, 10.0),
+        frames: 5,
+    };
+    lab.lobes[k] = [Some(lobes), None];
+    lab.blobs = blobs_of_lengths(&[26.8, 20.0], 0.5);
+    assert!(lab.still_merged(k, &pr, 0, 0));
+    assert!(!lab.still_merged(k, &pr, 0, 1));
+    assert!(!lab.still_merged(k, &pr, 1, 0), "no far lobe in cam1");
+    pr.merged = false;
+    assert!(!lab.still_merged(k, &pr, 0, 0), "not tracked at a lobe");
+}
+
+#[test]
+fn a_blob_of_two_discs_far_apart_in_both_cameras_is_not_one_dot() {
+    // Blobs of a marker's dot (8.3-8.7 px here) and a disc of its size beside it, `apart`
+    // px apart along x (their union: a dot's width, `apart` longer): 7.5 px apart in both
+    // cameras, the lobes lie 3.3 px either side of the centre, more than half a tight gate
+    // (3 px), and the blob is not one dot; 3 px apart (lobes 1.6 px out), in one camera
+    // only, or smeared by 12 px of motion this frame, it may be.
+    let (mut lab, k) = tracking_a_still_face(120);
+    let (_, pts) = face(8);
+    assert!(lab.set_marker_normals(pts.iter().map(normal_at).collect()));
+    let mut pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
+    pr.motion_px = [0.0, 0.0];
+    let dot = lab.seen_before.as_ref().unwrap().marker_blobs_px[k].unwrap();
+    let blob = |d: f64, apart: f64| {
+        BlobShape::of(&Detection {
+            centre_px: Point2::origin(),
+            area_px: (std::f64::consts::FRAC_PI_4 * d * (d + apart)) as usize,
+            roundness: d / (d + apart),
+            contrast_dn: 60.0,
+            quality: 0.4,
+            diameter_px: d + apart,
+            axis_rad: 0.0,
+            streak: false,
+        })
+    };
+    let shapes = |apart: f64| [0, 1].map(|c| vec![blob(dot[c], apart), blob(dot[c], 0.0)]);
+    lab.blobs = shapes(9.0);
+    lab.blobs = shapes(7.5);
+    assert!(lab.two_discs_in_both(&pr.point, &pr, [0, 0]));
+    assert!(
+        !lab.two_discs_in_both(&pr.point, &pr, [0, 1]),
+        "one camera only"
+    );
+    assert!(
+        !lab.two_discs_in_both(&pr.point, &pr, [1, 1]),
+        "a dot alone"
+    );
+    let mut moving = pr;
+    moving.motion_px = [12.0, 12.0];
+    assert!(
+        !lab.two_discs_in_both(&pr.point, &moving, [0, 0]),
+        "motion blur"
+    );
+    lab.blobs = shapes(3.0);
+    assert!(
+        !lab.two_discs_in_both(&pr.point, &pr, [0, 0]),
+        "lobes near the centre"
+    );
+}
+
+#[test]
 fn a_blob_grown_on_one_side_is_told_after_the_prediction_followed_it() {
     // A marker last labeled on 14 px blobs, 1 px off its dot towards a mole it had begun
     // to touch, and predicted 2.8 px off (the velocity carried the pull on): its dot and

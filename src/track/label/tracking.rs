@@ -1206,7 +1206,12 @@ impl Labeler {
     /// at its centre, between the dot and the blob beside it (lip-press seed 1401's M085,
     /// half hidden by the lip and merged with a mole of its size, was labeled there, 6-8 px
     /// off, in 9 frames), but at a lobe or not at all ([`Labeler::merged_dot`]).
-    fn two_discs_in_both(&self, point: &Point3<f64>, pr: &Prediction, det: [usize; 2]) -> bool {
+    pub(super) fn two_discs_in_both(
+        &self,
+        point: &Point3<f64>,
+        pr: &Prediction,
+        det: [usize; 2],
+    ) -> bool {
         let Some(normal) = pr.normal else {
             return false;
         };
@@ -1364,7 +1369,7 @@ impl Labeler {
     /// a blob puts the label between the two (lip-press seed 1401's M085, its blob 26.8 px
     /// long in both frames, was labeled 8 px off in cam0 for two frames when its lobes were
     /// not read there).
-    fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
+    pub(super) fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
         let last = self
             .seen_before
             .as_ref()
