@@ -1610,24 +1610,27 @@ fn tracking_a_still_face(seed: u64) -> (Labeler, usize) {
     (lab, k)
 }
 
+/// The shape of a blob `diameter_px` long (major axis along x), a filled ellipse of
+/// `roundness`.
+fn filled_ellipse_blob(diameter_px: f64, roundness: f64) -> BlobShape {
+    BlobShape::of(&Detection {
+        centre_px: Point2::origin(),
+        area_px: (std::f64::consts::FRAC_PI_4 * diameter_px * diameter_px * roundness) as usize,
+        roundness,
+        contrast_dn: 60.0,
+        quality: 0.4,
+        diameter_px,
+        axis_rad: 0.0,
+        streak: false,
+    })
+}
+
 /// Both cameras' shapes of blobs of the given lengths (major axes, pixels), as filled
 /// ellipses of `roundness`: for the rules that compare a marker's blob with its last one.
 fn blobs_of_lengths(lengths: &[f64], roundness: f64) -> [Vec<BlobShape>; 2] {
     let shapes: Vec<BlobShape> = lengths
         .iter()
-        .map(|&diameter_px| {
-            BlobShape::of(&Detection {
-                centre_px: Point2::origin(),
-                area_px: (std::f64::consts::FRAC_PI_4 * diameter_px * diameter_px * roundness)
-                    as usize,
-                roundness,
-                contrast_dn: 60.0,
-                quality: 0.4,
-                diameter_px,
-                axis_rad: 0.0,
-                streak: false,
-            })
-        })
+        .map(|&diameter_px| filled_ellipse_blob(diameter_px, roundness))
         .collect();
     [shapes.clone(), shapes]
 }
@@ -1708,18 +1711,7 @@ fn a_blob_of_two_discs_far_apart_in_both_cameras_is_not_one_dot() {
     let mut pr = lab.predictions(&lab.pose.unwrap(), 1, 0.0)[k];
     pr.motion_px = [0.0, 0.0];
     let dot = lab.seen_before.as_ref().unwrap().marker_blobs_px[k].unwrap();
-    let blob = |d: f64, apart: f64| {
-        BlobShape::of(&Detection {
-            centre_px: Point2::origin(),
-            area_px: (std::f64::consts::FRAC_PI_4 * d * (d + apart)) as usize,
-            roundness: d / (d + apart),
-            contrast_dn: 60.0,
-            quality: 0.4,
-            diameter_px: d + apart,
-            axis_rad: 0.0,
-            streak: false,
-        })
-    };
+    let blob = |d: f64, apart: f64| filled_ellipse_blob(d + apart, d / (d + apart));
     let shapes = |apart: f64| [0, 1].map(|c| vec![blob(dot[c], apart), blob(dot[c], 0.0)]);
     lab.blobs = shapes(9.0);
     lab.blobs = shapes(7.5);

@@ -632,6 +632,14 @@ impl Labeler {
             .and_then(|b| b.markers.get(i).copied().flatten())
     }
 
+    /// The major axes (pixels, cam0 and cam1) of marker `i`'s blobs at its label in the
+    /// last frame, if it had one.
+    fn last_blob_lengths(&self, i: usize) -> Option<[f64; 2]> {
+        self.seen_before
+            .as_ref()
+            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten())
+    }
+
     /// Whether marker `i`'s blobs `det` (at `x`), where it was labeled in the last frame
     /// and is predicted at `pr`, are in either camera a piece of its last blob off its
     /// place: shorter than [`WHOLE_BLOB_MIN_LENGTH_RATIO`] of the last blob, and beyond
@@ -671,11 +679,7 @@ impl Labeler {
         det: [usize; 2],
         test: impl Fn(usize, &BlobShape, Point2<f64>, f64) -> bool,
     ) -> bool {
-        let Some(was) = self
-            .seen_before
-            .as_ref()
-            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten())
-        else {
+        let Some(was) = self.last_blob_lengths(i) else {
             return false;
         };
         (0..2).any(|c| match (self.blobs[c].get(det[c]), pr.pixels[c]) {
@@ -1370,13 +1374,9 @@ impl Labeler {
     /// long in both frames, was labeled 8 px off in cam0 for two frames when its lobes were
     /// not read there).
     pub(super) fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
-        let last = self
-            .seen_before
-            .as_ref()
-            .and_then(|b| b.marker_blobs_px.get(i).copied().flatten());
         pr.merged
             && self.lobes.get(i).is_some_and(|l| l[c].is_some())
-            && match (last, self.blobs[c].get(det)) {
+            && match (self.last_blob_lengths(i), self.blobs[c].get(det)) {
                 (Some(last), Some(blob)) => blob.diameter_px >= STILL_MERGED_LENGTH_RATIO * last[c],
                 _ => false,
             }
