@@ -59,7 +59,12 @@
 //! stood beside a marker's dot the last time the marker was labeled (a mole, a freckle,
 //! a neighbour's dot: its offset from the dot is remembered) is never that marker's,
 //! whatever its shape: when the dot vanishes (under the lip, smudged off) the blob beside
-//! it is not taken for it ([`Labeler::stood_beside`]); nor, after a short gap, is a blob
+//! it is not taken for it ([`Labeler::stood_beside`]), unless the blobs that stood beside
+//! the dot stand around it as around the dot ([`Labeler::dot_by_its_surroundings`]: the
+//! prediction of a marker coming back may be off by as much as the mole was); nor is a
+//! blob of a marker coming back whose remembered surroundings put the dot on another blob
+//! ([`Labeler::beside_its_dot_found`]: a mole the lip carried to where the dot was last
+//! seen, with the dot at the mole's offset from it); nor, after a short gap, is a blob
 //! beyond its gate of where the dot was last seen that was there in the last frame (a dot
 //! back soon is where it was, or new: [`Labeler::stayed_while_gone`]). Nor is a mole that
 //! was one blob with the dot: a blob whose second moments are a dot's plus one direction's
@@ -83,11 +88,13 @@
 //! tracks are dropped and the next frame is acquired again.
 //!
 //! The work is split by job: [`tracking`] (prediction, gated assignment and stereo
-//! checks, head pose), [`acquisition`] (registration of unlabeled points to the layout)
-//! and [`assignment`] (optimal per-camera assignment).
+//! checks, head pose), [`acquisition`] (registration of unlabeled points to the layout),
+//! [`assignment`] (optimal per-camera assignment) and [`surroundings`] (the blobs beside a
+//! dot, found again around a candidate).
 
 mod acquisition;
 mod assignment;
+mod surroundings;
 mod tracking;
 
 use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
@@ -688,6 +695,8 @@ pub struct Labeler {
     light_measured: bool,
     /// The shapes of the current frame's detections, per camera.
     blobs: [Vec<BlobShape>; 2],
+    /// The current frame's detections' centres, for [`Labeler::surroundings_fit`].
+    blobs_now: surroundings::FrameBlobs,
     /// An acquisition under way over several frames.
     acquisition: acquisition::Search,
     /// Marker positions (head frame, layout order) of expressions acquisition tries
@@ -949,6 +958,7 @@ impl Labeler {
             light: [1.0; 2],
             light_measured: false,
             blobs: [Vec::new(), Vec::new()],
+            blobs_now: Default::default(),
             acquisition: acquisition::Search::default(),
             params,
             templates: Vec::new(),
@@ -1084,6 +1094,7 @@ impl Labeler {
                 })
                 .collect()
         });
+        self.blobs_now = surroundings::FrameBlobs::new(&pixels);
         let steps = match self.last_frame {
             Some(last)
                 if frame > last

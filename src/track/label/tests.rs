@@ -1698,6 +1698,70 @@ fn a_blob_as_long_as_the_merged_blob_it_was_is_still_merged() {
     assert!(!lab.still_merged(k, &pr, 0, 0), "not tracked at a lobe");
 }
 
+/// Marker `k` of a tracking labeler with `beside` (the same offsets in both cameras)
+/// remembered beside its dot, and `blobs` found in this frame (both cameras).
+fn surroundings_of(k: usize, lab: &mut Labeler, beside: &[Vector2<f64>], blobs: &[Point2<f64>]) {
+    lab.beside[k] = [beside.to_vec(), beside.to_vec()];
+    let found: Vec<Option<Point2<f64>>> = blobs.iter().copied().map(Some).collect();
+    lab.blobs_now = surroundings::FrameBlobs::new(&[found.clone(), found]);
+}
+
+#[test]
+fn a_dot_with_its_mole_and_freckle_beside_it_is_told_from_the_mole() {
+    // A lip dot with a mole 19 px below it and a freckle 14 px to its left, both carried
+    // with it (lip-press seed 1501's M054): the dot has both beside it at their offsets,
+    // give or take the skin's stretch; the mole has the dot at the mole's offset back
+    // from it, and the freckle beside that.
+    let (mut lab, k) = tracking_a_still_face(121);
+    let (mole, freckle) = (Vector2::new(-10.0, 16.0), Vector2::new(-12.0, -6.0));
+    let dot = Point2::new(840.0, 426.0);
+    let stretch = Vector2::new(-1.2, 1.2);
+    let m = dot + mole + stretch;
+    let mut blobs = vec![dot, m, dot + freckle - stretch];
+    surroundings_of(k, &mut lab, &[mole, freckle], &blobs);
+    let fit = lab.surroundings_fit(k, 0, dot);
+    assert_eq!(
+        (fit.as_dot, fit.as_beside, fit.as_beside_of_a_blob),
+        (2, 0, 0)
+    );
+    let fit = lab.surroundings_fit(k, 0, m);
+    assert_eq!(
+        (fit.as_dot, fit.as_beside, fit.as_beside_of_a_blob),
+        (0, 2, 2)
+    );
+    assert!(lab.dot_by_its_surroundings(k, [Some(dot); 2]));
+    assert!(!lab.dot_by_its_surroundings(k, [Some(m); 2]));
+    // Only a marker coming back: a tracked one is not refused on it.
+    lab.tracks[k].frames_since_seen = Some(0);
+    assert!(!lab.beside_its_dot_found(k, [Some(m); 2]));
+    lab.tracks[k].frames_since_seen = Some(9);
+    assert!(lab.beside_its_dot_found(k, [Some(m); 2]));
+    assert!(!lab.beside_its_dot_found(k, [Some(dot); 2]));
+    // In both cameras.
+    assert!(!lab.beside_its_dot_found(k, [Some(m), None]));
+    // The dot wiped off: the mole is not the dot by its surroundings (the freckle stands
+    // beside where the dot was), nor refused as beside a dot that is not there.
+    blobs.remove(0);
+    surroundings_of(k, &mut lab, &[mole, freckle], &blobs);
+    let fit = lab.surroundings_fit(k, 0, m);
+    assert_eq!(
+        (fit.as_dot, fit.as_beside, fit.as_beside_of_a_blob),
+        (0, 1, 0)
+    );
+    assert!(!lab.dot_by_its_surroundings(k, [Some(m); 2]));
+    assert!(!lab.beside_its_dot_found(k, [Some(m); 2]));
+    // Beyond the tolerance (a tight gate's half and a tenth of the offset), a blob is not
+    // the one that stood there.
+    let far = lab.beside_tolerance_px(&mole) + 0.5;
+    surroundings_of(
+        k,
+        &mut lab,
+        &[mole, freckle],
+        &[dot, dot + mole + Vector2::new(far, 0.0)],
+    );
+    assert_eq!(lab.surroundings_fit(k, 0, dot).as_dot, 0);
+}
+
 #[test]
 fn a_blob_of_two_discs_far_apart_in_both_cameras_is_not_one_dot() {
     // Blobs of a marker's dot (8.3-8.7 px here) and a disc of its size beside it, `apart`

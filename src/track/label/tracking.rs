@@ -1484,12 +1484,9 @@ impl Labeler {
     /// keep its marker's real dot away as a blob that stood beside it).
     pub(super) fn stood_beside(&self, i: usize, c: usize, x: Point2<f64>, q: Point2<f64>) -> bool {
         let o = x - q;
-        let half_gate = 0.5 * self.params.gate_px;
         self.beside.get(i).is_some_and(|b| {
-            b[c].iter().any(|b| {
-                let n = b.norm();
-                (o - b).norm() <= (half_gate + 0.1 * n).min(0.5 * n)
-            })
+            b[c].iter()
+                .any(|b| (o - b).norm() <= self.beside_tolerance_px(b))
         })
     }
 
@@ -1821,10 +1818,9 @@ impl Labeler {
             let last_seen = preds[i].last_seen.unwrap_or_default();
             let neighbours_place = preds[i].neighbours_place.unwrap_or_default();
             let from_neighbours = preds[i].from_neighbours;
-            small_for_long
-                || self.stayed_while_gone(i, &preds[i], bundle, [pixels[0][a], pixels[1][b]])
-                || [pixels[0][a], pixels[1][b]]
-                    .iter()
+            let x = [pixels[0][a], pixels[1][b]];
+            let stood_beside = || {
+                x.iter()
                     .zip(preds[i].pixels.iter().zip(last_seen))
                     .enumerate()
                     .any(|(c, (x, (q, l)))| {
@@ -1833,7 +1829,20 @@ impl Labeler {
                                 .iter()
                                 .flatten()
                                 .any(|&q| self.stood_beside(i, c, x, q))
-                                || q.is_some_and(|q| self.in_far_lobe(i, c, x, q, from_neighbours))
+                        })
+                    })
+                    && !self.dot_by_its_surroundings(i, x)
+            };
+            small_for_long
+                || self.stayed_while_gone(i, &preds[i], bundle, x)
+                || stood_beside()
+                || self.beside_its_dot_found(i, x)
+                || x.iter()
+                    .zip(preds[i].pixels.iter().zip(last_seen))
+                    .enumerate()
+                    .any(|(c, (x, (q, l)))| {
+                        x.is_some_and(|x| {
+                            q.is_some_and(|q| self.in_far_lobe(i, c, x, q, from_neighbours))
                                 || l.is_some_and(|l| self.in_far_lobe(i, c, x, l, false))
                         })
                     })
