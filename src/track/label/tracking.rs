@@ -1368,11 +1368,14 @@ impl Labeler {
     /// Whether marker `i`, tracked at a lobe of its blob in camera `c` in the last frame
     /// (`pr.merged`, and a far lobe remembered there), has in detection `det` a blob at
     /// least [`STILL_MERGED_LENGTH_RATIO`] of that blob's length: the dot and the blob
-    /// beside it are still one, even where its lobes are not read this frame, and the
-    /// blob is not a whole dot there ([`Labeler::merged_dot`]). Taken at its centre, such
-    /// a blob puts the label between the two (lip-press seed 1401's M085, its blob 26.8 px
-    /// long in both frames, was labeled 8 px off in cam0 for two frames when its lobes were
-    /// not read there).
+    /// beside it are still one, even where its lobes are not read this frame: the blob is
+    /// not a whole dot there ([`Labeler::merged_dot`]), nor a dot at its centre
+    /// (`Labeler::label_pass`). Taken at its centre, such a blob puts the label between the
+    /// two (lip-press seed 1401's M085, its blob 26.8 px long in both frames, was labeled
+    /// 8 px off in cam0 for two frames when its lobes were not read there), and the
+    /// prediction after it onto the mole (lip-press seed 1501's M102, 3.8 px off at the
+    /// centre, then followed on the mole 8 px off for 11 frames; seed 1402's M076, at the
+    /// silhouette, for 31).
     pub(super) fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
         pr.merged
             && self.lobes.get(i).is_some_and(|l| l[c].is_some())
@@ -1800,7 +1803,8 @@ impl Labeler {
                     && (self.tracks[i].frames_since_seen.is_some()
                         || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]))
                     && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b])
-                    && self.kept_its_contrast(i, &bundle.point_in_cam0, [a, b]);
+                    && self.kept_its_contrast(i, &bundle.point_in_cam0, [a, b])
+                    && !(0..2).any(|c| self.still_merged(i, pr, c, [a, b][c]));
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
