@@ -1814,8 +1814,13 @@ impl Labeler {
         };
         let check = |i: usize, a: usize, b: usize| check_within(i, a, b, 1.0);
         // Whether detections (a, b) are never marker i's label, but still a pair that makes
-        // its label ambiguous: they stood beside its dot ([`Labeler::stood_beside`]), or
-        // the marker's blobs have been small for long and so are these.
+        // its label ambiguous: they stood beside its dot ([`Labeler::stood_beside`]) and
+        // their surroundings do not make them the dot
+        // ([`Labeler::dot_by_its_surroundings`]), their surroundings put the dot of a
+        // marker coming back on another blob ([`Labeler::beside_its_dot_found`]), they
+        // stayed while it was gone ([`Labeler::stayed_while_gone`]), lie in a far lobe
+        // ([`Labeler::in_far_lobe`]), or the marker's blobs have been small for long and
+        // so are these.
         let refused = |i: usize, a: usize, b: usize, bundle: &Bundle| {
             let small_for_long = self.tracks[i].small_blob_frames >= SMALL_BLOB_FRAMES
                 && self.smaller_than_a_whole_dot(&bundle.point_in_cam0, [a, b]);
