@@ -134,8 +134,8 @@ struct Figures {
     labeled_detectable: usize,
     labeled: usize,
     wrong: usize,
-    /// The marker of each wrong label.
-    wrong_markers: Vec<String>,
+    /// The marker and frame of each wrong label.
+    wrong_markers: Vec<(String, usize)>,
     bundle_rms_mm: f64,
     bound_mm: f64,
     frames: usize,
@@ -201,7 +201,7 @@ fn evaluate(session: &Path, out: &Path) -> Figures {
             && on_own_dot(*frame, 1, name, &l1);
         if !right {
             wrong += 1;
-            wrong_markers.push(name.clone());
+            wrong_markers.push((name.clone(), *frame));
             eprintln!(
                 "  wrong: frame {frame} {name}: labeled ({:.1}, {:.1}) / ({:.1}, {:.1}), truth ({:.1}, {:.1}) / ({:.1}, {:.1})",
                 l0.x, l0.y, l1.x, l1.y, t0.px.x, t0.px.y, t1.px.x, t1.px.y
@@ -568,13 +568,40 @@ fn lip_dots_back_beside_their_mole_or_merged_with_it_are_not_taken_on_it() {
         "lip-press-1501",
         &["--preset", "lip-press", "--seed", "1501", "-n", "80"],
     );
-    let of = |marker: &str| f.wrong_markers.iter().filter(|m| *m == marker).count();
+    let of = |marker: &str| f.wrong_markers.iter().filter(|m| m.0 == marker).count();
     let (m054, m102) = (of("M054"), of("M102"));
     report(&format!(
         "lip-press seed 1501: 80 frames, {} wrong labels, {m054} of M054, {m102} of M102",
         f.wrong
     ));
     assert_eq!((m054, m102), (0, 0), "wrong labels of M054 and M102");
+}
+
+#[test]
+fn an_edge_on_dot_merged_with_a_mole_comes_back_at_its_lobe_not_at_the_blobs_centre() {
+    // Lip-press seed 1601's M030, a dot seen edge-on beside a 20 px mole, one blob with it
+    // in both cameras, is tracked at its lobe and lost now and then for a few frames where
+    // the lobes are not read in cam1. It came back at the blob's centre, 5 px from the dot
+    // and 2.5 px from the mole, and was tracked there (35 wrong labels in frames 5-63
+    // before the rules of `Labeler::back_at_its_lobe` and
+    // `Labeler::back_on_its_merged_blob`). Its first five frames, labeled at the centre by
+    // the acquisition, are still wrong (see the README's status).
+    let dir = tempfile::tempdir().unwrap();
+    let f = render_and_replay(
+        dir.path(),
+        "lip-press-1601",
+        &["--preset", "lip-press", "--seed", "1601", "-n", "64"],
+    );
+    let after_acquisition = f
+        .wrong_markers
+        .iter()
+        .filter(|(m, frame)| m == "M030" && *frame >= 5)
+        .count();
+    report(&format!(
+        "lip-press seed 1601: 64 frames, {} wrong labels, {after_acquisition} of M030 from frame 5",
+        f.wrong
+    ));
+    assert_eq!(after_acquisition, 0, "wrong labels of M030 from frame 5");
 }
 
 #[test]

@@ -625,6 +625,10 @@ struct Track {
     /// the dot's lobe, see `Labeler::merged_dot`): the largest distance, pixels, from the
     /// blob's centre to the lobe in either camera; 0 otherwise.
     lobe_px: f64,
+    /// Each camera's blob diameter ([`Detection::diameter_px`]) at the marker's last label
+    /// when that was at a dot's lobe (see `Labeler::back_on_its_merged_blob`); None
+    /// otherwise.
+    lobe_blob_px: Option<[f64; 2]>,
     /// While never labeled since the acquisition: the frames in a row in which the marker
     /// would have been labeled (see [`Labeler::confirm_new_tracks`]).
     confirming: usize,
@@ -1175,6 +1179,10 @@ impl Labeler {
                     .filter_map(|c| pixels[c][l.det[c]].map(|x| (x - at[c]).norm()))
                     .fold(0.0, f64::max)
             });
+            track.lobe_blob_px = l.at.and_then(|_| {
+                let length = |c: usize| self.blobs[c].get(l.det[c]).map(|b| b.diameter_px);
+                Some([length(0)?, length(1)?])
+            });
             if size[l.marker].is_some() {
                 track.size_over_expected = size[l.marker];
             }
@@ -1409,6 +1417,7 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             frames_since_seen: None,
             worn: false,
             lobe_px: 0.0,
+            lobe_blob_px: None,
             confirming: 0,
             small_blob_frames: 0,
             size_over_expected: None,

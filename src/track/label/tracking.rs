@@ -79,6 +79,13 @@ const MERGED_SHIFT: f64 = 0.25;
 /// merged blob's.
 const STILL_MERGED_LENGTH_RATIO: f64 = 0.9;
 
+/// Longest gap, frames, after which a marker last labeled at a merged blob's lobe is looked
+/// for at that lobe again ([`Labeler::back_at_its_lobe`]). Over a longer one the skin
+/// moves under its last place: with no limit, lip-press seed 904's M107, back after 15
+/// frames of a lip press that moved it 6 px, was taken at the lobe on the mole's side (33
+/// more wrong labels).
+const BACK_AT_LOBE_MAX_GAP: usize = 3;
+
 /// How far either side of its centre, as a share of the dot's major axis, the lobes of a
 /// labeled blob must be for it to be taken for a dot merged with a blob beside it (see
 /// `Labeler::far_lobe`): a lone dot 10 % larger than the profile says looks like lobes
@@ -1258,9 +1265,14 @@ impl Labeler {
             for lobe in self.lobes[i].iter_mut().flatten() {
                 lobe.from_label = lobe.apart;
             }
+            let lengths = [0, 1].map(|c| self.blobs[c].get(l.det[c]).map(|b| b.diameter_px));
             let track = &mut self.tracks[i];
             track.head = inverse * bundle.point_in_cam0;
             track.lobe_px = lobe0.max(lobe1);
+            track.lobe_blob_px = match lengths {
+                [Some(a), Some(b)] => Some([a, b]),
+                _ => None,
+            };
         }
     }
 
@@ -1269,8 +1281,10 @@ impl Labeler {
     /// worn dots on, [`super::LabelParams::worn_dots`]: a blob that is not a dot's shape is
     /// taken only there) the lobe within [`Labeler::worn_dot_tolerance_px`] of where the
     /// neighbours put the marker; for a marker tracked on such a blob, within the tight
-    /// gate of its prediction. The label is at the lobes, not at the blob's centre between
-    /// the dot and the mole. None without the skin's normal, for a first sighting whose
+    /// gate of its prediction; for one back at the lobe it was last labeled at
+    /// ([`Labeler::back_at_its_lobe`]), within its gate of its prediction. The label is at
+    /// the lobes, not at the blob's centre between the dot and the mole. None without the
+    /// skin's normal, for a first sighting whose
     /// far lobe is, in both cameras, within the reach of a rival beyond the gate (as in
     /// `Labeler::label_pass`) of where the neighbours put the marker, and for a marker
     /// tracked at a lobe whose blob shows no lobes in a camera but is still one with the
@@ -1293,10 +1307,11 @@ impl Labeler {
         x: [Point2<f64>; 2],
     ) -> Option<[Point2<f64>; 2]> {
         let normal = pr.normal?;
-        let (point, anchor) = if pr.first_sighting {
-            pr.vouched.filter(|_| pr.may_be_worn)?
-        } else {
-            (pr.point, pr.pixels)
+        let back_at_its_lobe = pr.first_sighting && self.back_at_its_lobe(i);
+        let (point, anchor) = match pr.vouched.filter(|_| pr.may_be_worn) {
+            Some(vouched) if pr.first_sighting => vouched,
+            _ if pr.first_sighting && !back_at_its_lobe => return None,
+            _ => (pr.point, pr.pixels),
         };
         let p = &self.params;
         let mut at = [Point2::origin(); 2];
@@ -1315,7 +1330,9 @@ impl Labeler {
             }
             let near = x[c] - far.unwrap_or_else(Vector2::zeros);
             let e = (near - q).norm();
-            let tolerance = if pr.first_sighting {
+            let tolerance = if back_at_its_lobe {
+                pr.gate_px
+            } else if pr.first_sighting {
                 self.worn_dot_tolerance_px(&point, c)?
             } else {
                 p.gate_px
@@ -1336,10 +1353,13 @@ impl Labeler {
             [None, None] => None,
             // A first sighting whose far lobe could be the dot too, as a rival blob beyond
             // the gate could (`Labeler::label_pass`), is in doubt: where the neighbours put
-            // the marker is a guess.
-            [Some(_), Some(_)] => {
-                (!(pr.first_sighting && far_in_reach[0].0 && far_in_reach[1].0)).then_some(at)
-            }
+            // the marker is a guess. (Not a marker back at its lobe: the side it was
+            // tracked on tells.)
+            [Some(_), Some(_)] => (!(pr.first_sighting
+                && !back_at_its_lobe
+                && far_in_reach[0].0
+                && far_in_reach[1].0))
+                .then_some(at),
             // Merged in one camera: in doubt when its far lobe is in reach and pairs with
             // the other camera's dot within the marker's gates widened as for a rival
             // (the two lobes lie along the epipolar line, at depths the gate allows), for
@@ -1377,9 +1397,60 @@ impl Labeler {
     /// centre, then followed on the mole 8 px off for 11 frames; seed 1402's M076, at the
     /// silhouette, for 31).
     pub(super) fn still_merged(&self, i: usize, pr: &Prediction, c: usize, det: usize) -> bool {
-        pr.merged
-            && self.lobes.get(i).is_some_and(|l| l[c].is_some())
-            && match (self.last_blob_lengths(i), self.blobs[c].get(det)) {
+        pr.merged && self.as_long_as_merged(i, c, det, self.last_blob_lengths(i))
+    }
+
+    /// Whether marker `i`, not labeled in the last frame, was last labeled at the dot's lobe
+    /// of a merged blob, at most [`BACK_AT_LOBE_MAX_GAP`] frames ago: coming back, it is
+    /// looked for at that lobe again, as a tracked marker is ([`Labeler::merged_dot`],
+    /// within its gate of its prediction), and not in doubt for a far lobe within its
+    /// gate (the side of the dot is the one it was tracked on).
+    pub(super) fn back_at_its_lobe(&self, i: usize) -> bool {
+        self.tracks.get(i).is_some_and(|t| {
+            t.lobe_px > 0.0
+                && t.frames_since_seen
+                    .is_some_and(|n| n > 0 && n <= BACK_AT_LOBE_MAX_GAP)
+        })
+    }
+
+    /// Whether detection `det` in camera `c`, a candidate of marker `i` coming back (`pr`
+    /// a first sighting) after its last label was at a dot's lobe, is the blob it was
+    /// then, still the dot and the blob beside it in one: it reads as two discs
+    /// ([`Labeler::lobe_split`]) and is at least [`STILL_MERGED_LENGTH_RATIO`] of that
+    /// label's blob's length ([`Track::lobe_blob_px`](super::Track)). It is not taken at
+    /// its centre (`Labeler::label_pass`), as [`Labeler::still_merged`] tells for a marker
+    /// tracked at a lobe: the gap did not part the dot and the mole. Nor is it taken as a
+    /// worn dot's smear where it is so in both cameras (in one, the lobes may be a hair
+    /// across a dot: cluttered seed 903's M100 lost 17 right labels to that). Lip-press seed 1601's
+    /// M030, an edge-on dot tracked at its lobe and lost for three frames where the lobes
+    /// were not read in cam1, came back at the blob's centre, 5 px from the dot and 2.5 px
+    /// from the mole, and was tracked there for 42 frames.
+    pub(super) fn back_on_its_merged_blob(
+        &self,
+        i: usize,
+        pr: &Prediction,
+        c: usize,
+        det: usize,
+    ) -> bool {
+        let Some(track) = self.tracks.get(i) else {
+            return false;
+        };
+        pr.first_sighting
+            && track.lobe_px > 0.0
+            && track.frames_since_seen.is_some_and(|n| n > 0)
+            && pr
+                .normal
+                .and_then(|n| self.lobe_split(&pr.point, &n, c, det))
+                .is_some()
+            && self.as_long_as_merged(i, c, det, track.lobe_blob_px)
+    }
+
+    /// Whether marker `i` has a far lobe remembered in camera `c` and detection `det` there
+    /// is at least [`STILL_MERGED_LENGTH_RATIO`] of `last[c]`, the length of a merged blob
+    /// it was labeled at.
+    fn as_long_as_merged(&self, i: usize, c: usize, det: usize, last: Option<[f64; 2]>) -> bool {
+        self.lobes.get(i).is_some_and(|l| l[c].is_some())
+            && match (last, self.blobs[c].get(det)) {
                 (Some(last), Some(blob)) => blob.diameter_px >= STILL_MERGED_LENGTH_RATIO * last[c],
                 _ => false,
             }
@@ -1777,6 +1848,9 @@ impl Labeler {
                 ..tri_worn.clone()
             };
             let bundle = gated_with([x0, x1], &tri_smear)?;
+            // A marker coming back to the merged blob it was tracked at a lobe of is not
+            // taken at the blob's centre.
+            let back_merged = || (0..2).any(|c| self.back_on_its_merged_blob(i, pr, c, [a, b][c]));
             if bundle.reprojection_px <= tri.max_reprojection_px {
                 // A marker tracked on a merged blob's lobe that is not found there now is
                 // taken off its last label (beyond the tight gate) only on a blob of a
@@ -1804,12 +1878,16 @@ impl Labeler {
                         || self.sized_like_neighbours(i, &bundle.point_in_cam0, [a, b]))
                     && self.sized_like_its_dot(i, &bundle.point_in_cam0, [a, b])
                     && self.kept_its_contrast(i, &bundle.point_in_cam0, [a, b])
-                    && !(0..2).any(|c| self.still_merged(i, pr, c, [a, b][c]));
+                    && !(0..2).any(|c| self.still_merged(i, pr, c, [a, b][c]))
+                    && !back_merged();
                 if dot {
                     return Some((bundle, Fit::Dot));
                 }
             }
-            self.worn_dot(pr, [a, b], [x0, x1])
+            // Nor is a blob that is so in both cameras a worn dot's smear.
+            let back_merged_in_both =
+                || (0..2).all(|c| self.back_on_its_merged_blob(i, pr, c, [a, b][c]));
+            (self.worn_dot(pr, [a, b], [x0, x1]) && !back_merged_in_both())
                 .then_some((bundle, Fit::Worn))
         };
         let check = |i: usize, a: usize, b: usize| check_within(i, a, b, 1.0);
