@@ -1164,6 +1164,7 @@ impl Labeler {
                     .get(l.det[c])
                     .map(|b| b.contrast_dn / self.light[c])
             });
+            let lobe_blob_px = l.at.and_then(|_| self.blob_lengths(l.det));
             let track = &mut self.tracks[l.marker];
             let reacquired = matches!(track.frames_since_seen, Some(n) if n > 0);
             let head = inverse * l.bundle.point_in_cam0;
@@ -1179,10 +1180,7 @@ impl Labeler {
                     .filter_map(|c| pixels[c][l.det[c]].map(|x| (x - at[c]).norm()))
                     .fold(0.0, f64::max)
             });
-            track.lobe_blob_px = l.at.and_then(|_| {
-                let length = |c: usize| self.blobs[c].get(l.det[c]).map(|b| b.diameter_px);
-                Some([length(0)?, length(1)?])
-            });
+            track.lobe_blob_px = lobe_blob_px;
             if size[l.marker].is_some() {
                 track.size_over_expected = size[l.marker];
             }

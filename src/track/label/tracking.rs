@@ -639,6 +639,13 @@ impl Labeler {
             .and_then(|b| b.markers.get(i).copied().flatten())
     }
 
+    /// The major axes (pixels, cam0 and cam1) of this frame's detections `det`, None where
+    /// one is not among them.
+    pub(super) fn blob_lengths(&self, det: [usize; 2]) -> Option<[f64; 2]> {
+        let length = |c: usize| self.blobs[c].get(det[c]).map(|b| b.diameter_px);
+        Some([length(0)?, length(1)?])
+    }
+
     /// The major axes (pixels, cam0 and cam1) of marker `i`'s blobs at its label in the
     /// last frame, if it had one.
     fn last_blob_lengths(&self, i: usize) -> Option<[f64; 2]> {
@@ -1265,14 +1272,11 @@ impl Labeler {
             for lobe in self.lobes[i].iter_mut().flatten() {
                 lobe.from_label = lobe.apart;
             }
-            let lengths = [0, 1].map(|c| self.blobs[c].get(l.det[c]).map(|b| b.diameter_px));
+            let lengths = self.blob_lengths(l.det);
             let track = &mut self.tracks[i];
             track.head = inverse * bundle.point_in_cam0;
             track.lobe_px = lobe0.max(lobe1);
-            track.lobe_blob_px = match lengths {
-                [Some(a), Some(b)] => Some([a, b]),
-                _ => None,
-            };
+            track.lobe_blob_px = lengths;
         }
     }
 
@@ -1406,11 +1410,15 @@ impl Labeler {
     /// within its gate of its prediction), and not in doubt for a far lobe within its
     /// gate (the side of the dot is the one it was tracked on).
     pub(super) fn back_at_its_lobe(&self, i: usize) -> bool {
-        self.tracks.get(i).is_some_and(|t| {
-            t.lobe_px > 0.0
-                && t.frames_since_seen
-                    .is_some_and(|n| n > 0 && n <= BACK_AT_LOBE_MAX_GAP)
-        })
+        self.frames_gone_from_a_lobe(i)
+            .is_some_and(|n| n <= BACK_AT_LOBE_MAX_GAP)
+    }
+
+    /// For marker `i`, not labeled in the last frame and last labeled at a dot's lobe, the
+    /// frames since that label.
+    fn frames_gone_from_a_lobe(&self, i: usize) -> Option<usize> {
+        let t = self.tracks.get(i)?;
+        t.frames_since_seen.filter(|&n| n > 0 && t.lobe_px > 0.0)
     }
 
     /// Whether detection `det` in camera `c`, a candidate of marker `i` coming back (`pr`
@@ -1436,8 +1444,7 @@ impl Labeler {
             return false;
         };
         pr.first_sighting
-            && track.lobe_px > 0.0
-            && track.frames_since_seen.is_some_and(|n| n > 0)
+            && self.frames_gone_from_a_lobe(i).is_some()
             && pr
                 .normal
                 .and_then(|n| self.lobe_split(&pr.point, &n, c, det))
