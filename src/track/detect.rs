@@ -32,6 +32,7 @@
 
 use nalgebra::Point2;
 
+use super::pieces::dots_across_bands;
 use super::search_windows::{Rect, RectGrid, SearchWindows, in_any};
 use crate::capture::GrayImage;
 use crate::numeric::{find_root, join_sets};
@@ -442,15 +443,19 @@ impl MarkerDetector {
         }
         let roi = (x0, y0, x1, y1);
         let scales = params.window_scales();
-        let [small] = scales[..] else {
-            return self.detect_two_scales(image, params, &scales, roi, windows, centres, rejected);
+        let mut found = if let [small] = scales[..] {
+            let scaled = params.scaled_to_dot_sizes();
+            self.threshold(image, &scaled, small, roi, windows.map(|w| w.0));
+            let mut out = Vec::new();
+            let measuring = Measuring::new(image, &scaled, None, 0);
+            self.components(measuring, roi, centres, &mut out, rejected);
+            out
+        } else {
+            self.detect_two_scales(image, params, &scales, roi, windows, centres, rejected)
         };
-        let scaled = params.scaled_to_dot_sizes();
-        self.threshold(image, &scaled, small, roi, windows.map(|w| w.0));
-        let mut out = Vec::new();
-        let measuring = Measuring::new(image, &scaled, None, 0);
-        self.components(measuring, roi, centres, &mut out, rejected);
-        out
+        let whole = dots_across_bands(image, params, &found);
+        found.extend(whole);
+        found
     }
 
     /// Detection at two window scales with per-blob scale selection: the small window

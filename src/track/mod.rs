@@ -7,6 +7,7 @@
 pub mod detect;
 pub mod gate;
 pub mod label;
+mod pieces;
 pub mod profile;
 pub mod search_windows;
 pub mod tracker;
