@@ -284,7 +284,8 @@ const PRESETS: &[(&str, usize, Goal)] = &[
     (
         "cluttered",
         60,
-        // Measured 97.7 % labeled (97.25 % before thin blobs' contrast floor went from
+        // Measured 98.4 % labeled (97.7 % before the pieces of a dot a highlight splits
+        // were joined, 97.25 % before thin blobs' contrast floor went from
         // 1.5 to 1.3 times the dots', 97.1 % before a worn dot's pair got a wider epipolar
         // gate, 95.7 % before streaks were reported, 94.4 % before dots merged with a
         // mole were labeled at their lobe, 88.5 % before worn dots were taken and frame 0
@@ -294,7 +295,7 @@ const PRESETS: &[(&str, usize, Goal)] = &[
         // by 1.4 points (82.6 → 81.2 % when the noise generator changed), so the floor
         // leaves that much, and one wrong label.
         Goal::Floor {
-            labeled: 0.963,
+            labeled: 0.969,
             max_wrong: 1,
         },
     ),
