@@ -1288,7 +1288,8 @@ impl Labeler {
     /// gate of its prediction; for one back at the lobe it was last labeled at
     /// ([`Labeler::back_at_its_lobe`]), within its gate of its prediction. The label is at
     /// the lobes, not at the blob's centre between the dot and the mole. None without the
-    /// skin's normal, for a first sighting whose
+    /// skin's normal, for a first sighting of a marker last labeled on a worn dot's smear
+    /// ([`Labeler::back_on_its_smear`]), for a first sighting whose
     /// far lobe is, in both cameras, within the reach of a rival beyond the gate (as in
     /// `Labeler::label_pass`) of where the neighbours put the marker, and for a marker
     /// tracked at a lobe whose blob shows no lobes in a camera but is still one with the
@@ -1311,6 +1312,9 @@ impl Labeler {
         x: [Point2<f64>; 2],
     ) -> Option<[Point2<f64>; 2]> {
         let normal = pr.normal?;
+        if pr.first_sighting && self.back_on_its_smear(i) {
+            return None;
+        }
         let back_at_its_lobe = pr.first_sighting && self.back_at_its_lobe(i);
         let (point, anchor) = match pr.vouched.filter(|_| pr.may_be_worn) {
             Some(vouched) if pr.first_sighting => vouched,
@@ -1412,6 +1416,20 @@ impl Labeler {
     pub(super) fn back_at_its_lobe(&self, i: usize) -> bool {
         self.frames_gone_from_a_lobe(i)
             .is_some_and(|n| n <= BACK_AT_LOBE_MAX_GAP)
+    }
+
+    /// Whether marker `i`, not labeled in the last frame, was last labeled on a worn dot's
+    /// smear: coming back, after any gap (a smudge does not heal), it is not taken at a
+    /// lobe of a blob read as a dot merged with another ([`Labeler::merged_dot`]), but as
+    /// the smear it was, or not at all. One smudged dot in ten is wide enough to read as
+    /// two discs side by side (see `LOBE_MIN_ACROSS_RATIO`): cluttered seed 2001's M049, a
+    /// smear a hair touches, labeled at its centre as a worn dot, was taken at the lobe
+    /// toward its lower end, 5.3-5.8 px off, after gaps of one frame and of four (4 wrong
+    /// labels; with the rule limited to gaps of up to three frames, 1).
+    pub(super) fn back_on_its_smear(&self, i: usize) -> bool {
+        self.tracks
+            .get(i)
+            .is_some_and(|t| t.worn && t.frames_since_seen.is_some_and(|n| n > 0))
     }
 
     /// For marker `i`, not labeled in the last frame and last labeled at a dot's lobe, the
