@@ -29,6 +29,8 @@
 //!    0.42 radii, 3-4 px on a face-filling rig): a blob whose pull, told by its distance
 //!    from the edge and its diameter, exceeds [`DetectParams::max_edge_bias_px`] is
 //!    rejected.
+//! 7. Two blobs a band of light (a highlight on wet skin; a shadow, for bright dots) split
+//!    a dot into are also reported as the whole dot (module `pieces`).
 
 use nalgebra::Point2;
 
