@@ -1188,6 +1188,11 @@ const HAIR_FREE_MIN_WIDTH_PX: f64 = 6.5;
 /// roundness 0.63) 0.37.
 const HAIR_CHECK_SPOKES_FILL: f64 = 0.5;
 
+/// A dot found under hair may be no rounder than its component when it fills at least
+/// this share of its ellipse (a dot seen edge-on with a hair along it: the stroke adds
+/// length and few pixels, the core is a filled ellipse; a dot fills 0.85-1.05).
+const HAIR_FREE_MIN_FILL: f64 = 0.85;
+
 /// Smallest share of its component's pixels a dot found under hair holds.
 const HAIR_FREE_MIN_SHARE: f64 = 0.4;
 
@@ -1440,7 +1445,9 @@ fn whole_smear(measuring: Measuring, pixels: &[(usize, usize, u8)]) -> Option<De
 /// square removes such strokes and leaves whatever is at least three pixels wide whole.
 /// Some when exactly one part of the opening is a dot (by [`measure_blob`]) markedly
 /// rounder than the component's own `roundness` (0 when it was not measured): at least
-/// [`HAIR_FREE_MIN_ROUNDNESS`] and [`HAIR_FREE_ROUNDNESS_GAIN`] above it, at least
+/// [`HAIR_FREE_MIN_ROUNDNESS`] and [`HAIR_FREE_ROUNDNESS_GAIN`] above it, or filling its
+/// ellipse as a dot does ([`HAIR_FREE_MIN_FILL`]; a dot seen edge-on with a hair along
+/// it is no rounder without the hair), at least
 /// [`HAIR_FREE_MIN_WIDTH_PX`] wide and holding [`HAIR_FREE_MIN_SHARE`] of the component's
 /// pixels: a dot seen edge-on is not turned into a piece of itself, and a freckle a hair
 /// touches is not taken for the dot of a component that is mostly hair.
@@ -1478,7 +1485,9 @@ fn hair_free_core(
             return;
         }
         if let Ok(d) = measure_blob(measuring, part)
-            && d.roundness >= min_roundness
+            && (d.roundness >= min_roundness
+                || (ellipse_fill(&d) >= HAIR_FREE_MIN_FILL
+                    && d.roundness >= params.elongated_min_roundness))
             && d.diameter_px * d.roundness >= HAIR_FREE_MIN_WIDTH_PX
         {
             count += 1;
@@ -2667,6 +2676,37 @@ mod tests {
         assert_eq!(found.len(), 1, "{found:?}");
         assert!(found[0].diameter_px > 13.0, "{:?}", found[0]);
         assert!((found[0].centre_px - Point2::new(thin.0, thin.1)).norm() < 0.1);
+    }
+
+    #[test]
+    fn finds_a_dot_seen_edge_on_with_a_hair_along_it() {
+        // Eyebrow dots seen 70° from their normal (20 × 7 px) with a hair as dark as the ink
+        // (0.9 px wide) crossing one near its end or ending on it: the blob is longer and
+        // no rounder than the dot (cluttered seed 120's M044, its centre pulled 2.4 px
+        // off, missed in 41 of 60 frames). The core without the hair fills its ellipse as a
+        // dot does; it is the dot, whole, even though it is no rounder than the blob.
+        let cases = [
+            // (dot centre, dot axis angle, hair centre offset, hair angle)
+            ((50.3, 35.6), 0.3, (6.0, -4.0), 1.3),
+            ((150.7, 35.2), 1.2, (-3.0, -9.0), 0.2),
+            ((50.4, 85.5), -0.4, (9.0, 1.0), 0.9),
+            ((150.2, 85.8), 0.0, (-12.0, 0.0), 1.6),
+        ];
+        for &((x, y), angle, (hx, hy), hair_angle) in &cases {
+            let dot = (x, y, 10.0, 3.5, angle);
+            let hair = (x + hx, y + hy, 30.0, 0.45, hair_angle);
+            let img = image_with_ellipses(&[dot, hair]);
+            let found = detect_markers(&img, &DetectParams::default());
+            // Within a pixel (the hair's rim beside the dot stays in the core), where the
+            // whole blob is pulled 2 px or more.
+            let near: Vec<_> = found
+                .iter()
+                .filter(|d| (d.centre_px - Point2::new(x, y)).norm() < 1.0)
+                .collect();
+            assert_eq!(near.len(), 1, "dot at ({x}, {y}): {found:?}");
+            // Its own length (20 px and the rim), not the hair's.
+            assert!((19.0..23.0).contains(&near[0].diameter_px), "{:?}", near[0]);
+        }
     }
 
     #[test]
