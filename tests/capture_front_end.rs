@@ -177,12 +177,16 @@ fn synth_session_detect_and_triangulate_against_ground_truth() {
     // 97.4 %, 123 spurious blobs, centre RMS 0.195 px, 210 pairs of which none wrong and 6
     // with a spurious blob, bundle RMS 0.138 mm (before the large window ran at half
     // resolution: 120 spurious blobs, 208 pairs, 4 with a spurious blob, the rest the
-    // same); the bound on spurious blobs leaves a tenth. Pairing by the epipolar
+    // same). On 2026-12-07: 134 spurious blobs and 206 pairs (5 with a spurious blob)
+    // once two blobs either side of a band of light were also reported whole (blobs that
+    // are no marker pair so too: 11 more), 141 once a thin blob's core without a hair
+    // across its end was taken (7 more); recall, centre RMS and bundle RMS the same. The
+    // bound on spurious blobs leaves a tenth. Pairing by the epipolar
     // constraint alone cannot reject a pair of two markers on a shared epipolar line whose
     // true partners were both missed: labeling against the layout must.
     assert!(recall > 0.95, "recall {recall}");
     assert!(rms_px < 0.3, "centre RMS {rms_px} px");
-    assert!(spurious <= 135, "{spurious} spurious blobs");
+    assert!(spurious <= 155, "{spurious} spurious blobs");
     assert!(
         wrong_pairs * 50 <= pairs,
         "{wrong_pairs} wrong of {pairs} pairs"

@@ -284,8 +284,8 @@ const PRESETS: &[(&str, usize, Goal)] = &[
     (
         "cluttered",
         60,
-        // Measured 98.6 % labeled (98.4 % before a dot seen edge-on with a hair along it
-        // was found by its core, 97.7 % before the pieces of a dot a highlight splits
+        // Measured 98.6 % labeled (98.4 % before a dot seen edge-on with a hair across its
+        // end was found by its core, 97.7 % before the pieces of a dot a highlight splits
         // were joined, 97.25 % before thin blobs' contrast floor went from
         // 1.5 to 1.3 times the dots', 97.1 % before a worn dot's pair got a wider epipolar
         // gate, 95.7 % before streaks were reported, 94.4 % before dots merged with a

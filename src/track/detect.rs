@@ -1189,8 +1189,8 @@ const HAIR_FREE_MIN_WIDTH_PX: f64 = 6.5;
 const HAIR_CHECK_SPOKES_FILL: f64 = 0.5;
 
 /// A dot found under hair may be no rounder than its component when it fills at least
-/// this share of its ellipse (a dot seen edge-on with a hair along it: the stroke adds
-/// length and few pixels, the core is a filled ellipse; a dot fills 0.85-1.05).
+/// this share of its ellipse (a dot seen edge-on with a hair across its end: the stroke
+/// adds length and few pixels, the core is a filled ellipse; a dot fills 0.85-1.05).
 const HAIR_FREE_MIN_FILL: f64 = 0.85;
 
 /// Smallest share of its component's pixels a dot found under hair holds.
@@ -1446,8 +1446,8 @@ fn whole_smear(measuring: Measuring, pixels: &[(usize, usize, u8)]) -> Option<De
 /// Some when exactly one part of the opening is a dot (by [`measure_blob`]) markedly
 /// rounder than the component's own `roundness` (0 when it was not measured): at least
 /// [`HAIR_FREE_MIN_ROUNDNESS`] and [`HAIR_FREE_ROUNDNESS_GAIN`] above it, or filling its
-/// ellipse as a dot does ([`HAIR_FREE_MIN_FILL`]; a dot seen edge-on with a hair along
-/// it is no rounder without the hair), at least
+/// ellipse as a dot does ([`HAIR_FREE_MIN_FILL`]; a dot seen edge-on with a hair across
+/// its end is no rounder without the hair), at least
 /// [`HAIR_FREE_MIN_WIDTH_PX`] wide and holding [`HAIR_FREE_MIN_SHARE`] of the component's
 /// pixels: a dot seen edge-on is not turned into a piece of itself, and a freckle a hair
 /// touches is not taken for the dot of a component that is mostly hair.
@@ -2679,7 +2679,7 @@ mod tests {
     }
 
     #[test]
-    fn finds_a_dot_seen_edge_on_with_a_hair_along_it() {
+    fn finds_a_dot_seen_edge_on_with_a_hair_across_its_end() {
         // Eyebrow dots seen 70° from their normal (20 × 7 px) with a hair as dark as the ink
         // (0.9 px wide) crossing one near its end or ending on it: the blob is longer and
         // no rounder than the dot (cluttered seed 120's M044, its centre pulled 2.4 px
