@@ -2089,6 +2089,25 @@ fn background_plane(
     move |x: usize, y: usize| coef[0] + coef[1] * (x as f64 - xm) + coef[2] * (y as f64 - ym)
 }
 
+/// A square 8-bit binary PGM (`P5`, `side × side`, maximum 255) held in memory: the crops
+/// of rendered frames that tests detect in.
+#[cfg(test)]
+pub(super) fn pgm_image(bytes: &[u8], side: u32) -> GrayImage {
+    let header = format!("P5\n{side} {side}\n255\n");
+    assert_eq!(
+        &bytes[..header.len()],
+        header.as_bytes(),
+        "not a {side}×{side} PGM"
+    );
+    let data = bytes[header.len()..].to_vec();
+    assert_eq!(data.len(), (side * side) as usize);
+    GrayImage {
+        width: side,
+        height: side,
+        data,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -2863,14 +2882,7 @@ mod tests {
         // of skin. At the candidate threshold the two are one component, too large and not
         // round; raising the threshold splits the dot off as a thin part, which must still
         // be taken for a foreshortened dot. Its true centre: (24.25, 24.23).
-        let pgm = include_bytes!("testdata/edge_on_dot_in_shade.pgm");
-        let header = b"P5\n49 49\n255\n";
-        assert_eq!(&pgm[..header.len()], header);
-        let img = GrayImage {
-            width: 49,
-            height: 49,
-            data: pgm[header.len()..].to_vec(),
-        };
+        let img = pgm_image(include_bytes!("testdata/edge_on_dot_in_shade.pgm"), 49);
         let truth = Point2::new(24.25, 24.23);
         let found = detect_markers(&img, &DetectParams::default());
         let near: Vec<_> = found

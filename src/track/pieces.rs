@@ -233,7 +233,7 @@ fn joined(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::track::detect::detect_markers;
+    use crate::track::detect::{detect_markers, pgm_image};
 
     /// A light band across the image: the line through `(x, y)` at `angle_rad` from +x,
     /// `width` pixels wide, multiplying the light by `1 + gain` (soft edges).
@@ -365,14 +365,7 @@ mod tests {
         // its lower half. The detector finds it in two pieces, 6.3 and 8.6 px from its
         // centre, (41.93, 42.02) in the crop; the labeler took neither, and M100 was
         // missed in 60 of its 60 frames.
-        let pgm = include_bytes!("testdata/highlight_across_a_dot.pgm");
-        let header = b"P5\n84 84\n255\n";
-        assert_eq!(&pgm[..header.len()], header);
-        let image = GrayImage {
-            width: 84,
-            height: 84,
-            data: pgm[header.len()..].to_vec(),
-        };
+        let image = pgm_image(include_bytes!("testdata/highlight_across_a_dot.pgm"), 84);
         let at = Point2::new(41.93, 42.02);
         let p = DetectParams::default();
         let found = detect_markers(&image, &p);
