@@ -31,10 +31,16 @@
 //!    rejected.
 //! 7. Two blobs a band of light (a highlight on wet skin; a shadow, for bright dots) split
 //!    a dot into are also reported as the whole dot (module `pieces`).
+//! 8. A dot a dark band touches (a crease, the mouth line's shadow) is one component with
+//!    the band, and splits off it only in part: the ellipse its rim makes around such a
+//!    part is reported as the dot too (module `rim`), in a component at least
+//!    `RIM_MIN_BAND_LENGTH` (3) times as long as it, when no other detection is that dot or
+//!    holds it.
 
 use nalgebra::Point2;
 
 use super::pieces::dots_across_bands;
+use super::rim::dot_by_its_rim;
 use super::search_windows::{Rect, RectGrid, SearchWindows, in_any};
 use crate::capture::GrayImage;
 use crate::numeric::{find_root, join_sets};
@@ -445,16 +451,39 @@ impl MarkerDetector {
         }
         let roi = (x0, y0, x1, y1);
         let scales = params.window_scales();
+        let mut by_rim = Vec::new();
         let mut found = if let [small] = scales[..] {
             let scaled = params.scaled_to_dot_sizes();
             self.threshold(image, &scaled, small, roi, windows.map(|w| w.0));
             let mut out = Vec::new();
             let measuring = Measuring::new(image, &scaled, None, 0);
-            self.components(measuring, roi, centres, &mut out, rejected);
+            self.components(measuring, roi, centres, &mut out, rejected, &mut by_rim);
             out
         } else {
-            self.detect_two_scales(image, params, &scales, roi, windows, centres, rejected)
+            self.detect_two_scales(
+                image,
+                params,
+                &scales,
+                roi,
+                windows,
+                centres,
+                rejected,
+                &mut by_rim,
+            )
         };
+        // Dots found by their rim (module `rim`) that no other detection is, nor lies in
+        // (a smear found whole, a hair across it making the pieces).
+        let mut kept: Vec<Detection> = Vec::new();
+        for dot in by_rim {
+            if !found
+                .iter()
+                .chain(&kept)
+                .any(|o| same_dot(o, &dot) || holds(o, &dot))
+            {
+                kept.push(dot);
+            }
+        }
+        found.extend(kept);
         let whole = dots_across_bands(image, params, &found);
         found.extend(whole);
         found
@@ -489,6 +518,7 @@ impl MarkerDetector {
         windows: Option<(&SearchWindows, &[Rect])>,
         centres: Option<&[Rect]>,
         rejected: Option<&mut Vec<Rejection>>,
+        by_rim: &mut Vec<Detection>,
     ) -> Vec<Detection> {
         let (small, large) = (scales[0], scales[scales.len() - 1]);
         let scaled = params.scaled_to_dot_sizes();
@@ -556,6 +586,7 @@ impl MarkerDetector {
                 coarse_centres.as_deref(),
                 &mut coarse,
                 None,
+                by_rim,
             );
         }
         self.half = half;
@@ -593,6 +624,7 @@ impl MarkerDetector {
             fine_centres.as_deref(),
             &mut fine,
             rejected,
+            by_rim,
         );
         merge_scales(coarse, fine)
     }
@@ -614,6 +646,7 @@ impl MarkerDetector {
         centres: Option<&[Rect]>,
         out: &mut Vec<Detection>,
         mut rejected: Option<&mut Vec<Rejection>>,
+        by_rim: &mut Vec<Detection>,
     ) {
         let bw = x1 - x0;
         let c = measuring.params.min_contrast_dn;
@@ -752,6 +785,7 @@ impl MarkerDetector {
                     0,
                     out,
                     rejected.as_deref_mut(),
+                    Some(&mut *by_rim),
                 );
             }
         }
@@ -1278,6 +1312,7 @@ fn split_and_measure(
     depth: usize,
     out: &mut Vec<Detection>,
     mut rejected: Option<&mut Vec<Rejection>>,
+    by_rim: Option<&mut Vec<Detection>>,
 ) {
     let params = measuring.params;
     let area = measuring.area(pixels.len());
@@ -1341,6 +1376,7 @@ fn split_and_measure(
     if depth < 4 && next <= 255 && !cut_by_edge {
         split_at(measuring, pixels, next, depth, out, rejected.as_deref_mut());
     }
+    let split_end = out.len();
     // A smeared dot (sweat, a wipe) is longer than a dot and may be split in pieces, none
     // of them centred on the ink: the whole smear is reported too, when it is an ellipse
     // up to `SMEAR_MAX_LENGTH` dots long (the labeler takes such a blob only where the
@@ -1375,6 +1411,29 @@ fn split_and_measure(
     {
         out.push(smear);
     }
+    // A dot a dark band touches (a crease, the mouth line's shadow) splits off it only in
+    // part, its side away from the band: the dot whose rim shows around such a part is
+    // reported too (module `rim`), once detection is done (`by_rim`), and only in a band
+    // at least three times as long as the dot: a smear (a smudged dot with a hair across
+    // it measured twice as long as the ellipse fitted to its upper half, cluttered seed
+    // 33's M035) or a dot merged with a mole is the smear's and the labeler's lobes'
+    // business.
+    if let Some(by_rim) = by_rim
+        && depth == 0
+        && matches!(reason, RejectReason::NotRound | RejectReason::TooLarge)
+        && split_end > found_before
+    {
+        let length = 4.0 * measuring.scale as f64 * second_moments(pixels).0.max(0.0).sqrt();
+        for piece in &out[found_before..split_end] {
+            if let Some(dot) = dot_by_its_rim(measuring.image, params, piece)
+                && length >= RIM_MIN_BAND_LENGTH * dot.diameter_px
+                && !out[found_before..].iter().any(|o| same_dot(o, &dot))
+                && !by_rim.iter().any(|o| same_dot(o, &dot))
+            {
+                by_rim.push(dot);
+            }
+        }
+    }
     // A blob none of whose parts is a dot is listed once, at the top of its splitting.
     if depth == 0
         && out.len() == found_before
@@ -1392,6 +1451,34 @@ fn split_and_measure(
             reason,
         });
     }
+}
+
+/// A component a dot is found in by its rim ([`dot_by_its_rim`]) is at least this many
+/// times as long as the dot: a band the dot touches (the mouth line that cluttered's M100
+/// touches in cam0 makes a component 340 px long; at twice the dot, the upper half of a
+/// smudged dot a hair crosses was fitted as a dot and labeled 6.5 px off its marker).
+const RIM_MIN_BAND_LENGTH: f64 = 3.0;
+
+/// Two detections are the same dot when their centres and their diameters differ by at
+/// most this share of a diameter.
+const RIM_SAME_DOT: f64 = 0.25;
+
+/// Whether `a` is the dot `b` is (see [`RIM_SAME_DOT`]).
+fn same_dot(a: &Detection, b: &Detection) -> bool {
+    (a.centre_px - b.centre_px).norm() <= RIM_SAME_DOT * b.diameter_px
+        && (a.diameter_px - b.diameter_px).abs() <= RIM_SAME_DOT * b.diameter_px
+}
+
+/// Whether `a` is larger than `b` and `b`'s centre lies inside `a`'s ellipse.
+fn holds(a: &Detection, b: &Detection) -> bool {
+    if !(a.diameter_px > b.diameter_px && a.axis_rad.is_finite()) {
+        return false;
+    }
+    let (semi_major, semi_minor) = (0.5 * a.diameter_px, 0.5 * a.diameter_px * a.roundness);
+    let d = b.centre_px - a.centre_px;
+    let (c, s) = (a.axis_rad.cos(), a.axis_rad.sin());
+    let (u, v) = (d.x * c + d.y * s, -d.x * s + d.y * c);
+    semi_minor > 0.0 && (u / semi_major).powi(2) + (v / semi_minor).powi(2) <= 1.0
 }
 
 /// How long a smeared dot reported whole beside its pieces may be, in the longest dot's
@@ -1670,6 +1757,7 @@ fn split_at(
             depth + 1,
             out,
             rejected.as_deref_mut(),
+            None,
         );
     });
 }

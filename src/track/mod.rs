@@ -9,6 +9,7 @@ pub mod gate;
 pub mod label;
 mod pieces;
 pub mod profile;
+mod rim;
 pub mod search_windows;
 pub mod tracker;
 
