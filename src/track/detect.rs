@@ -40,7 +40,7 @@
 use nalgebra::Point2;
 
 use super::pieces::dots_across_bands;
-use super::rim::dot_by_its_rim;
+use super::rim::{MIN_AREA_GAIN, dot_by_its_rim};
 use super::search_windows::{Rect, RectGrid, SearchWindows, in_any};
 use crate::capture::GrayImage;
 use crate::numeric::{find_root, join_sets};
@@ -1424,8 +1424,13 @@ fn split_and_measure(
         && split_end > found_before
     {
         let length = 4.0 * measuring.scale as f64 * second_moments(pixels).0.max(0.0).sqrt();
+        // The dot is at least `MIN_AREA_GAIN` times the piece's area, so at least this long.
+        let shortest = |piece: &Detection| {
+            2.0 * (MIN_AREA_GAIN * piece.area_px as f64 / std::f64::consts::PI).sqrt()
+        };
         for piece in &out[found_before..split_end] {
-            if let Some(dot) = dot_by_its_rim(measuring.image, params, piece)
+            if length >= RIM_MIN_BAND_LENGTH * shortest(piece)
+                && let Some(dot) = dot_by_its_rim(measuring.image, params, piece)
                 && length >= RIM_MIN_BAND_LENGTH * dot.diameter_px
                 && !out[found_before..].iter().any(|o| same_dot(o, &dot))
                 && !by_rim.iter().any(|o| same_dot(o, &dot))

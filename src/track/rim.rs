@@ -49,8 +49,9 @@ const MIN_INLIER_SHARE: f64 = 0.6;
 /// something else).
 const MAX_GAP_RAD: f64 = 2.0 * std::f64::consts::FRAC_PI_3;
 
-/// Least area of the ellipse, in units of the piece's area: smaller, the piece is the dot.
-const MIN_AREA_GAIN: f64 = 1.5;
+/// Least area of the ellipse, in units of the piece's area: smaller, the piece is the dot
+/// (`detect` counts on this value to skip pieces of short components).
+pub(super) const MIN_AREA_GAIN: f64 = 1.5;
 
 /// Longest ellipse, in units of the piece's diameter: a piece is a third of the dot
 /// across or more. A dot narrower than the band it touches leaves a small piece, and the
