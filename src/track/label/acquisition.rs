@@ -101,7 +101,48 @@ impl Labeler {
         if pass.labels.len() < p.acquire_min_markers {
             return None;
         }
+        self.start_confirming_new_tracks(&pose, &pass.labels, pixels);
         Some((pose, pass))
+    }
+
+    /// Starts the confirmation ([`super::CONFIRM_FRAMES`]) of the markers the
+    /// acquisition's frame shows beside its labels. The acquisition takes whole dots that
+    /// pair as dots on their own; a worn dot, or a dot a hair crosses, is taken only
+    /// where neighbours labeled in the last frame put the marker, and the acquisition's
+    /// frame has no last frame: such markers were first found in the frame after, confirmed
+    /// in the one after that, and labeled two frames late. Here the tracking's pass is run
+    /// on the acquisition's frame with the acquisition's `labels` as those neighbours (the
+    /// tracks of their markers set as the labels leave them, `pose` the head's): a marker
+    /// never labeled that it puts on a blob no label holds has been found once, and is
+    /// labeled from the next frame on if found there too. Nothing more is labeled in this
+    /// frame.
+    fn start_confirming_new_tracks(
+        &mut self,
+        pose: &Isometry3<f64>,
+        labels: &[super::Label],
+        pixels: &[Vec<Option<Point2<f64>>>; 2],
+    ) {
+        let inverse = pose.inverse();
+        let mut used: [Vec<bool>; 2] = [0, 1].map(|c| vec![false; pixels[c].len()]);
+        for l in labels {
+            let track = &mut self.tracks[l.marker];
+            track.head = inverse * l.bundle.point_in_cam0;
+            track.frames_since_seen = Some(0);
+            for (used, &d) in used.iter_mut().zip(&l.det) {
+                if let Some(u) = used.get_mut(d) {
+                    *u = true;
+                }
+            }
+        }
+        let preds = self.predictions(pose, 1, 0.0);
+        let pass = self.label_pass(&preds, pixels);
+        for l in &pass.labels {
+            let free = (0..2).all(|c| used[c].get(l.det[c]).is_some_and(|u| !u));
+            let track = &mut self.tracks[l.marker];
+            if free && track.frames_since_seen.is_none() {
+                track.confirming = 1;
+            }
+        }
     }
 
     /// How many markers `preds` put in view of both cameras: inside both images, and

@@ -73,7 +73,8 @@
 //! sighting, unless the other lobe is within a rival's reach; a marker tracked onto such
 //! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
 //! A marker never labeled since the acquisition is labeled only once found in
-//! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]), and only on a
+//! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]; the acquisition's
+//! frame counts, looked at with the acquisition's labels as the neighbours), and only on a
 //! blob about the size of its neighbours' dots in one camera at least, and not larger
 //! than theirs in both ([`LabelParams::never_seen_min_relative_size`],
 //! [`LabelParams::never_seen_max_relative_size`]); a marker back after a long gap, only

@@ -1092,6 +1092,63 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
 }
 
 #[test]
+fn worn_dots_at_the_acquisition_are_labeled_from_the_next_frame() {
+    // Dots smeared from the first frame (blobs twice a dot's length, roundness 0.3,
+    // centred on the dot) and dots merged with a mole (the same blob, a third of a dot
+    // off, toward the mole). The acquisition takes whole dots only, and a worn dot is
+    // taken where neighbours labeled in the last frame put the marker: found first in
+    // the acquisition's frame under its labels, a smear is confirmed in the next frame
+    // and labeled from there on (it was found first in frame 1 and labeled from frame 2).
+    let rig = crate::camera::default_helmet_rig().unwrap();
+    let (layout, pts) = face(9);
+    let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
+    let cam1_from_head = cam1_from_head(&rig, &pose);
+    let worn = [4, 12, 26, 38, 55];
+    let merged = [7, 19, 33, 50, 71];
+    let mut lab = labeler_with_normals(&layout, &pts, true);
+    let mut rng = Rng::new(109);
+    for f in 0..4usize {
+        let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
+        for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
+            let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+            for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
+                let Some(k) = *truth else { continue };
+                let shift = if worn.contains(&k) {
+                    0.0
+                } else if merged.contains(&k) {
+                    0.8
+                } else {
+                    continue;
+                };
+                let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
+                let at = cam_from_head * (pts[k] + side * shift);
+                d.centre_px = cam.project(&at.coords).unwrap();
+                d.diameter_px *= 2.0;
+                d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
+                d.area_px = filled_ellipse_area(d);
+            }
+        }
+        let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
+        let truth = [obs[0].1.clone(), obs[1].1.clone()];
+        let (labeled, wrong) = count(&out, &truth);
+        assert_eq!(wrong, 0, "frame {f}");
+        assert!(labeled >= 60, "frame {f}: {labeled} labeled");
+        let in_both = |k: usize| truth[0].contains(&Some(k)) && truth[1].contains(&Some(k));
+        let seen: Vec<usize> = worn.iter().copied().filter(|&k| in_both(k)).collect();
+        assert!(seen.len() >= 4, "only {} worn dots in view", seen.len());
+        let worn_labeled = seen.iter().filter(|&&k| out.markers[k].is_some()).count();
+        // In the acquisition's frame, none: a new track is confirmed over two frames.
+        let expected = if f == 0 { 0 } else { seen.len() };
+        assert_eq!(worn_labeled, expected, "frame {f}: worn dots labeled");
+        assert_eq!(
+            merged.iter().filter(|&&k| out.markers[k].is_some()).count(),
+            0,
+            "frame {f}: dots merged with moles labeled"
+        );
+    }
+}
+
+#[test]
 fn a_worn_dots_centres_may_disagree_more_than_a_dots() {
     // Smears for the whole take, as in the test above, whose centres in the two images
     // disagree across the epipolar geometry: in each image the centre is moved off the
