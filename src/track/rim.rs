@@ -26,6 +26,11 @@ use rand::rngs::StdRng;
 use super::detect::{DetectParams, Detection};
 use crate::capture::GrayImage;
 
+/// Roundest piece looked at: the side of a dot a band cuts off is a cap, wider than
+/// deep (a half disc measures 0.62, less of a disc less); a round piece is a whole dot,
+/// which the fit would only find again.
+const MAX_PIECE_ROUNDNESS: f64 = 0.7;
+
 /// Rays cast from a piece.
 const RAYS: usize = 48;
 
@@ -58,16 +63,19 @@ pub(super) const MIN_AREA_GAIN: f64 = 1.5;
 /// ellipse through its rim and the band's far edge is long against it: not taken.
 const MAX_LENGTH_GAIN: f64 = 2.5;
 
-/// How far rays reach, in units of the piece's diameter (a piece a third of the dot
-/// across, at its side, sees the far rim at about three of its diameters), and at most
-/// the longest dot, `1.25 × max_dot_px`.
-const REACH_IN_PIECES: f64 = 4.0;
+/// How far rays reach, in units of the piece's diameter (the dot is at most
+/// [`MAX_LENGTH_GAIN`] of them long, so its far rim is nearer than that from a piece
+/// inside it), and at most the longest dot, `1.25 × max_dot_px`.
+const REACH_IN_PIECES: f64 = 3.0;
 
 /// Shortest reach of the rays, pixels.
 const MIN_REACH_PX: f64 = 8.0;
 
 /// RANSAC draws of five edge points.
 const DRAWS: usize = 64;
+
+/// A conic that this share of the edge points lie on ends the draws.
+const ENOUGH_INLIERS: f64 = 0.9;
 
 /// Seed of the RANSAC draws: the same image gives the same dot.
 const RANSAC_SEED: u64 = 0x0072_696d;
@@ -86,7 +94,11 @@ pub(super) fn dot_by_its_rim(
     piece: &Detection,
 ) -> Option<Detection> {
     let seed = piece.centre_px;
-    if !(seed.x.is_finite() && seed.y.is_finite() && piece.diameter_px.is_finite()) {
+    let looked_at = seed.x.is_finite()
+        && seed.y.is_finite()
+        && piece.diameter_px.is_finite()
+        && piece.roundness < MAX_PIECE_ROUNDNESS;
+    if !looked_at {
         return None;
     }
     let longest = 1.25 * params.max_dot_px.clamp(1.0, 400.0);
@@ -123,6 +135,9 @@ pub(super) fn dot_by_its_rim(
         let n = conic.inliers(&unit, tolerance).count();
         if best.as_ref().is_none_or(|b| n > b.1) {
             best = Some((conic, n));
+        }
+        if n as f64 >= ENOUGH_INLIERS * unit.len() as f64 {
+            break;
         }
     }
     let (mut conic, _) = best?;
@@ -202,46 +217,57 @@ impl Slopes {
             return None;
         }
         let (w, h) = (x1 - x0, y1 - y0);
-        // Smoothing reads two pixels beyond the window (clamped at the image's edges),
-        // the differences one more.
-        let g = 3;
-        let (gx0, gy0) = (x0 as isize - g, y0 as isize - g);
-        let (gw, gh) = (w + 2 * g as usize, h + 2 * g as usize);
-        let pixel = |x: isize, y: isize| -> f32 {
-            let x = x.clamp(0, iw as isize - 1) as usize;
-            let y = y.clamp(0, ih as isize - 1) as usize;
-            f32::from(image.data[y * iw + x])
-        };
-        const TAPS: [f32; 5] = [1.0, 4.0, 6.0, 4.0, 1.0];
-        let mut rows = vec![0f32; gw * gh];
+        // The smoothing of the window grown by a pixel (for the differences) reads two
+        // pixels more, clamped at the image's edges: each row of that, filtered along x
+        // (sums ×16), then along y (×256).
+        let (gx0, gy0) = (x0 as isize - 3, y0 as isize - 3);
+        let (gw, gh) = (w + 2, h + 6);
+        let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+        let mut line = vec![0u16; gw + 4];
+        let mut rows = vec![0u16; gw * gh];
         for y in 0..gh {
-            for x in 0..gw {
-                rows[y * gw + x] = TAPS
-                    .iter()
-                    .enumerate()
-                    .map(|(k, t)| t * pixel(gx0 + x as isize + k as isize - 2, gy0 + y as isize))
-                    .sum::<f32>()
-                    / 16.0;
+            let row = clamp(gy0 + y as isize, ih) * iw;
+            if gx0 >= 0 && gx0 as usize + line.len() <= iw {
+                let start = row + gx0 as usize;
+                for (v, &p) in line.iter_mut().zip(&image.data[start..start + gw + 4]) {
+                    *v = u16::from(p);
+                }
+            } else {
+                for (k, v) in line.iter_mut().enumerate() {
+                    *v = u16::from(image.data[row + clamp(gx0 + k as isize, iw)]);
+                }
+            }
+            for (x, out) in rows[y * gw..(y + 1) * gw].iter_mut().enumerate() {
+                let l = &line[x..x + 5];
+                *out = l[0] + 4 * l[1] + 6 * l[2] + 4 * l[3] + l[4];
             }
         }
-        let mut smooth = vec![0f32; gw * gh];
-        for y in 2..gh - 2 {
-            for x in 0..gw {
-                smooth[y * gw + x] = TAPS
-                    .iter()
-                    .enumerate()
-                    .map(|(k, t)| t * rows[(y + k - 2) * gw + x])
-                    .sum::<f32>()
-                    / 16.0;
+        let (sw, sh) = (gw, h + 2);
+        let mut smooth = vec![0u32; sw * sh];
+        for y in 0..sh {
+            let r = |k: usize| &rows[(y + k) * gw..(y + k + 1) * gw];
+            let (a, b, c, d, e) = (r(0), r(1), r(2), r(3), r(4));
+            for (x, out) in smooth[y * sw..(y + 1) * sw].iter_mut().enumerate() {
+                *out = u32::from(a[x])
+                    + 4 * u32::from(b[x])
+                    + 6 * u32::from(c[x])
+                    + 4 * u32::from(d[x])
+                    + u32::from(e[x]);
             }
         }
+        // Central differences, levels per pixel.
+        let scale = 0.5 / 256.0;
         let mut gx = vec![0f32; w * h];
         let mut gy = vec![0f32; w * h];
         for y in 0..h {
+            let (above, here, below) = (
+                &smooth[y * sw..(y + 1) * sw],
+                &smooth[(y + 1) * sw..(y + 2) * sw],
+                &smooth[(y + 2) * sw..(y + 3) * sw],
+            );
             for x in 0..w {
-                let (sx, sy) = (x + g as usize, y + g as usize);
-                gx[y * w + x] = 0.5 * (smooth[sy * gw + sx + 1] - smooth[sy * gw + sx - 1]);
-                gy[y * w + x] = 0.5 * (smooth[(sy + 1) * gw + sx] - smooth[(sy - 1) * gw + sx]);
+                gx[y * w + x] = (here[x + 2] as f32 - here[x] as f32) * scale;
+                gy[y * w + x] = (below[x + 1] as f32 - above[x + 1] as f32) * scale;
             }
         }
         Some(Self {
@@ -283,31 +309,36 @@ impl Slopes {
 fn edge_points(slopes: &Slopes, seed: Point2<f64>, reach: f64, sign: f64) -> Vec<Point2<f64>> {
     let steps = (reach / STEP_PX).floor() as usize;
     let mut out = Vec::with_capacity(RAYS);
-    let mut along = Vec::with_capacity(steps);
     for k in 0..RAYS {
         let t = std::f64::consts::TAU * k as f64 / RAYS as f64;
         let (dx, dy) = (t.cos(), t.sin());
-        along.clear();
-        for i in 0..steps {
+        let slope = |i: usize| {
             let r = 1.0 + i as f64 * STEP_PX;
-            let Some((gx, gy)) = slopes.at(seed.x + r * dx, seed.y + r * dy) else {
+            slopes
+                .at(seed.x + r * dx, seed.y + r * dy)
+                .map(|(gx, gy)| sign * (gx * dx + gy * dy))
+        };
+        // The last three slopes along the ray, stepping out until the middle one is the
+        // edge (or the ray ends).
+        let (Some(mut a), Some(mut b)) = (slope(0), slope(1)) else {
+            continue;
+        };
+        for i in 2..steps {
+            let Some(c) = slope(i) else {
                 break;
             };
-            along.push(sign * (gx * dx + gy * dy));
-        }
-        let found = (1..along.len().saturating_sub(1)).find(|&i| {
-            along[i] >= MIN_EDGE_SLOPE_DN && along[i] >= along[i - 1] && along[i] >= along[i + 1]
-        });
-        if let Some(i) = found {
-            let (a, b, c) = (along[i - 1], along[i], along[i + 1]);
-            let curvature = a - 2.0 * b + c;
-            let shift = if curvature < 0.0 {
-                (0.5 * (a - c) / curvature).clamp(-0.5, 0.5)
-            } else {
-                0.0
-            };
-            let r = 1.0 + (i as f64 + shift) * STEP_PX;
-            out.push(Point2::new(seed.x + r * dx, seed.y + r * dy));
+            if b >= MIN_EDGE_SLOPE_DN && b >= a && b >= c {
+                let curvature = a - 2.0 * b + c;
+                let shift = if curvature < 0.0 {
+                    (0.5 * (a - c) / curvature).clamp(-0.5, 0.5)
+                } else {
+                    0.0
+                };
+                let r = 1.0 + (i as f64 - 1.0 + shift) * STEP_PX;
+                out.push(Point2::new(seed.x + r * dx, seed.y + r * dy));
+                break;
+            }
+            (a, b) = (b, c);
         }
     }
     out
@@ -538,8 +569,8 @@ mod tests {
         let mut found = 0;
         // Dots 10-22 px across, round and foreshortened at several angles, each reaching
         // 1.6 px into the band (rows 70-77) under the band's shadow; the piece the
-        // threshold leaves is their upper side: a disc half the dot's width, centred half
-        // way to the dot's top.
+        // threshold leaves is their upper side: a cap half the dot's length across
+        // (roundness 0.5), centred half way to the dot's top.
         for &(a, b, t) in &[
             (9.0, 7.0, std::f64::consts::FRAC_PI_2),
             (9.0, 7.0, 0.0),
@@ -555,13 +586,19 @@ mod tests {
             let piece = Detection {
                 centre_px: Point2::new(cx + 0.4, cy - 0.5 * reach_y),
                 area_px: (std::f64::consts::PI * a * a / 4.0).round() as usize,
-                roundness: 0.8,
+                roundness: 0.5,
                 contrast_dn: 60.0,
                 quality: 0.5,
                 diameter_px: a,
                 axis_rad: 0.0,
                 streak: false,
             };
+            // A round piece is a whole dot: not looked at.
+            let round = Detection {
+                roundness: 0.8,
+                ..piece
+            };
+            assert!(dot_by_its_rim(&image, &p, &round).is_none());
             // Found at its centre, or not at all.
             if let Some(dot) = dot_by_its_rim(&image, &p, &piece) {
                 assert!(
@@ -587,7 +624,7 @@ mod tests {
             let piece = Detection {
                 centre_px: Point2::new(x, 73.5),
                 area_px: 20,
-                roundness: 0.8,
+                roundness: 0.5,
                 contrast_dn: 60.0,
                 quality: 0.5,
                 diameter_px: 6.0,
