@@ -1003,6 +1003,46 @@ fn smear_detections(
     centres
 }
 
+/// Turns each camera's detection of the markers in `worn` (of `obs`, seen at `pts` under
+/// `pose`) into a smudged dot's blob, twice the dot's length, roundness 0.3, centred on the
+/// dot, and of those in `merged` into a dot merged with a mole as dark as the ink: the same
+/// blob, roundness 0.45, its centre 0.8 mm (a third of a dot) off toward the mole. With
+/// `end_on`, camera 1 sees every such blob end-on (along its line of sight): a dot's length,
+/// roundness 0.65.
+fn smudge_and_merge(
+    rig: &StereoRig,
+    pose: &Isometry3<f64>,
+    pts: &[Point3<f64>],
+    obs: &mut [(Vec<Detection>, Vec<Option<usize>>); 2],
+    (worn, merged): (&[usize], &[usize]),
+    end_on: bool,
+) {
+    for (c, cam_from_head) in [(0, *pose), (1, cam1_from_head(rig, pose))] {
+        let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
+        let (dets, truth) = &mut obs[c];
+        for (d, truth) in dets.iter_mut().zip(truth.iter()) {
+            let Some(k) = *truth else { continue };
+            let shift = if worn.contains(&k) {
+                0.0
+            } else if merged.contains(&k) {
+                0.8
+            } else {
+                continue;
+            };
+            let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
+            let at = cam_from_head * (pts[k] + side * shift);
+            d.centre_px = cam.project(&at.coords).unwrap();
+            if end_on && c == 1 {
+                d.roundness = 0.65;
+            } else {
+                d.diameter_px *= 2.0;
+                d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
+            }
+            d.area_px = filled_ellipse_area(d);
+        }
+    }
+}
+
 #[test]
 fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
     // Some dots are smeared for the whole take: a blob twice a dot's length, roundness
@@ -1015,7 +1055,6 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(9);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let worn = [4, 12, 26, 38, 55];
     let merged = [7, 19, 33, 50, 71];
     let run = |worn_dots: bool, end_on: bool| -> (usize, usize, usize) {
@@ -1034,30 +1073,7 @@ fn a_worn_dot_is_labeled_at_its_centre_and_a_dot_merged_with_a_mole_is_not() {
         let (mut worn_labeled, mut worn_seen, mut merged_labeled) = (0, 0, 0);
         for f in 0..30usize {
             let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
-            for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-                let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-                for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
-                    let Some(k) = *truth else { continue };
-                    let shift = if worn.contains(&k) {
-                        0.0
-                    } else if merged.contains(&k) {
-                        0.8
-                    } else {
-                        continue;
-                    };
-                    let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
-                    let at = cam_from_head * (pts[k] + side * shift);
-                    let dot_px = d.diameter_px;
-                    d.centre_px = cam.project(&at.coords).unwrap();
-                    if end_on && c == 1 {
-                        d.roundness = 0.65;
-                    } else {
-                        d.diameter_px = 2.0 * dot_px;
-                        d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
-                    }
-                    d.area_px = filled_ellipse_area(d);
-                }
-            }
+            smudge_and_merge(&rig, &pose, &pts, &mut obs, (&worn, &merged), end_on);
             let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
             let truth = [obs[0].1.clone(), obs[1].1.clone()];
             let (_, wrong) = count(&out, &truth);
@@ -1102,32 +1118,13 @@ fn worn_dots_at_the_acquisition_are_labeled_from_the_next_frame() {
     let rig = crate::camera::default_helmet_rig().unwrap();
     let (layout, pts) = face(9);
     let pose = pose_facing(&rig, 230.0, Vector3::zeros(), Vector3::zeros());
-    let cam1_from_head = cam1_from_head(&rig, &pose);
     let worn = [4, 12, 26, 38, 55];
     let merged = [7, 19, 33, 50, 71];
     let mut lab = labeler_with_normals(&layout, &pts, true);
     let mut rng = Rng::new(109);
     for f in 0..4usize {
         let mut obs = observe(&rig, &pose, &pts, &[], 0.15, 0, &mut rng);
-        for (c, cam_from_head) in [(0, pose), (1, cam1_from_head)] {
-            let cam = if c == 0 { &rig.cam0 } else { &rig.cam1 };
-            for (d, truth) in obs[c].0.iter_mut().zip(&obs[c].1) {
-                let Some(k) = *truth else { continue };
-                let shift = if worn.contains(&k) {
-                    0.0
-                } else if merged.contains(&k) {
-                    0.8
-                } else {
-                    continue;
-                };
-                let side = normal_at(&pts[k]).cross(&Vector3::x()).normalize();
-                let at = cam_from_head * (pts[k] + side * shift);
-                d.centre_px = cam.project(&at.coords).unwrap();
-                d.diameter_px *= 2.0;
-                d.roundness = if shift > 0.0 { 0.45 } else { 0.3 };
-                d.area_px = filled_ellipse_area(d);
-            }
-        }
+        smudge_and_merge(&rig, &pose, &pts, &mut obs, (&worn, &merged), false);
         let out = lab.process(FrameIndex::from(f), [&obs[0].0, &obs[1].0]);
         let truth = [obs[0].1.clone(), obs[1].1.clone()];
         let (labeled, wrong) = count(&out, &truth);
