@@ -27,7 +27,7 @@ use super::detect::{DetectParams, Detection};
 use crate::capture::GrayImage;
 
 /// Roundest piece looked at: the side of a dot a band cuts off is a cap, wider than
-/// deep (a half disc measures 0.62, less of a disc less); a round piece is a whole dot,
+/// deep (a half disc measures 0.53, less of a disc less); a round piece is a whole dot,
 /// which the fit would only find again.
 const MAX_PIECE_ROUNDNESS: f64 = 0.7;
 
@@ -38,8 +38,9 @@ const RAYS: usize = 48;
 const STEP_PX: f64 = 0.5;
 
 /// Least outward slope of an edge point, levels per pixel, on the image smoothed by a
-/// 5-tap binomial (σ = 1 px): the soft rim of a smudged dot measured 5-10, skin texture
-/// under the smoothing 1-2.
+/// 5-tap binomial (σ = 1 px): on cluttered's M100, a smudged dot with a soft rim, rays
+/// asking for 6 passed parts of its rim and the fit took the band's far edge instead;
+/// with 3 it held the rim in every frame tried.
 const MIN_EDGE_SLOPE_DN: f64 = 3.0;
 
 /// How far an edge point may be from the ellipse (Sampson distance) and count for it,
