@@ -180,7 +180,11 @@ pub(super) fn dot_by_its_rim(
         area_px: (std::f64::consts::PI * a * b).round() as usize,
         roundness,
         contrast_dn,
-        quality: (roundness * (contrast_dn / (contrast_dn + 40.0))).clamp(0.0, 1.0),
+        // Ranked (for the acquisition's share of detections) no higher than its piece: a
+        // fit is less sure than a blob, and the fits ranked above it pushed whole dots out.
+        quality: piece
+            .quality
+            .min((roundness * (contrast_dn / (contrast_dn + 40.0))).clamp(0.0, 1.0)),
         diameter_px: 2.0 * a,
         axis_rad: e.axis_rad,
         streak: false,
