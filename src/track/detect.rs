@@ -1430,8 +1430,8 @@ fn split_and_measure(
         };
         for piece in &out[found_before..split_end] {
             if length >= RIM_MIN_BAND_LENGTH * shortest(piece)
-                && let Some(dot) = dot_by_its_rim(measuring.image, params, piece)
-                && length >= RIM_MIN_BAND_LENGTH * dot.diameter_px
+                && let Some(dot) =
+                    dot_by_its_rim(measuring.image, params, piece, length / RIM_MIN_BAND_LENGTH)
                 && !out[found_before..].iter().any(|o| same_dot(o, &dot))
                 && !by_rim.iter().any(|o| same_dot(o, &dot))
             {

@@ -64,11 +64,6 @@ pub(super) const MIN_AREA_GAIN: f64 = 1.5;
 /// ellipse through its rim and the band's far edge is long against it: not taken.
 const MAX_LENGTH_GAIN: f64 = 2.5;
 
-/// How far rays reach, in units of the piece's diameter (the dot is at most
-/// [`MAX_LENGTH_GAIN`] of them long, so its far rim is nearer than that from a piece
-/// inside it), and at most the longest dot, `1.25 × max_dot_px`.
-const REACH_IN_PIECES: f64 = 3.0;
-
 /// Shortest reach of the rays, pixels.
 const MIN_REACH_PX: f64 = 8.0;
 
@@ -88,11 +83,13 @@ const MIN_CONTRAST_FACTOR: f64 = 2.0;
 
 /// The dot whose rim the piece `piece` (a part of a component too long or too large to be
 /// a dot, split off it) lies inside, if the rim around it is a dot's (see the module
-/// docs); `params` as `piece` was detected with.
+/// docs); `params` as `piece` was detected with. Dots up to `longest_px` long (and
+/// `1.25 × max_dot_px`) are looked for.
 pub(super) fn dot_by_its_rim(
     image: &GrayImage,
     params: &DetectParams,
     piece: &Detection,
+    longest_px: f64,
 ) -> Option<Detection> {
     let seed = piece.centre_px;
     let looked_at = seed.x.is_finite()
@@ -102,10 +99,18 @@ pub(super) fn dot_by_its_rim(
     if !looked_at {
         return None;
     }
-    let longest = 1.25 * params.max_dot_px.clamp(1.0, 400.0);
-    let reach = (REACH_IN_PIECES * piece.diameter_px)
+    let longest = (1.25 * params.max_dot_px.clamp(1.0, 400.0)).min(longest_px);
+    if longest.is_nan() || longest < 2.0 {
+        return None;
+    }
+    // The rays reach the far rim of any dot taken: the seed lies inside the dot, so no
+    // point of its rim is further from it than its length (at most `MAX_LENGTH_GAIN`
+    // pieces' diameters and `longest`), and an edge point on it is within `INLIER_PX` of
+    // the rim.
+    let reach = (MAX_LENGTH_GAIN * piece.diameter_px)
+        .min(longest)
         .max(MIN_REACH_PX)
-        .min(longest);
+        + INLIER_PX;
     let sign = if params.bright { -1.0 } else { 1.0 };
     let slopes = Slopes::around(image, seed, reach + 2.0)?;
     let edges = edge_points(&slopes, seed, reach, sign);
@@ -432,26 +437,22 @@ impl Conic {
             .then(|| Self([c[0], c[1], c[2], c[3], c[4]]))
     }
 
-    /// The Sampson distance of `(x, y)` from the conic (its algebraic distance over the
-    /// gradient's length): the geometric distance to first order.
-    fn distance(&self, (x, y): (f64, f64)) -> f64 {
-        let [a, b, c, d, e] = self.0;
-        let q = a * x * x + b * x * y + c * y * y + d * x + e * y - 1.0;
-        let gx = 2.0 * a * x + b * y + d;
-        let gy = b * x + 2.0 * c * y + e;
-        q.abs() / gx.hypot(gy).max(1e-12)
-    }
-
-    /// The points within `tolerance` of the conic.
+    /// The points within `tolerance` of the conic: their Sampson distance (the algebraic
+    /// distance over the gradient's length, the geometric distance to first order),
+    /// compared squared.
     fn inliers<'a>(
         &'a self,
         points: &'a [(f64, f64)],
         tolerance: f64,
     ) -> impl Iterator<Item = (f64, f64)> + 'a {
-        points
-            .iter()
-            .copied()
-            .filter(move |&p| self.distance(p) <= tolerance)
+        let [a, b, c, d, e] = self.0;
+        let squared = tolerance * tolerance;
+        points.iter().copied().filter(move |&(x, y)| {
+            let q = a * x * x + b * x * y + c * y * y + d * x + e * y - 1.0;
+            let gx = 2.0 * a * x + b * y + d;
+            let gy = b * x + 2.0 * c * y + e;
+            q * q <= squared * (gx * gx + gy * gy)
+        })
     }
 
     /// The conic as an ellipse, None when it is none (or a degenerate one).
@@ -580,9 +581,11 @@ mod tests {
                 roundness: 0.8,
                 ..piece
             };
-            assert!(dot_by_its_rim(&image, &p, &round).is_none());
+            assert!(dot_by_its_rim(&image, &p, &round, f64::INFINITY).is_none());
+            // Not looked for in a band too short for it (`longest_px` under its length).
+            assert!(dot_by_its_rim(&image, &p, &piece, 2.0 * a - 2.0).is_none());
             // Found at its centre, or not at all.
-            if let Some(dot) = dot_by_its_rim(&image, &p, &piece) {
+            if let Some(dot) = dot_by_its_rim(&image, &p, &piece, f64::INFINITY) {
                 assert!(
                     (dot.centre_px - Point2::new(cx, cy)).norm() <= 0.6,
                     "dot {a}×{b} at {t} rad: {dot:?}"
@@ -613,7 +616,10 @@ mod tests {
                 axis_rad: 0.0,
                 streak: false,
             };
-            assert!(dot_by_its_rim(&image, &p, &piece).is_none(), "at {x}");
+            assert!(
+                dot_by_its_rim(&image, &p, &piece, f64::INFINITY).is_none(),
+                "at {x}"
+            );
         }
         // Freckles 4-5 px across on the band's edge: nothing larger than them is found.
         let freckles = [
@@ -636,7 +642,7 @@ mod tests {
                 streak: false,
             };
             assert!(
-                dot_by_its_rim(&image, &p, &piece).is_none(),
+                dot_by_its_rim(&image, &p, &piece, f64::INFINITY).is_none(),
                 "freckle at {x}"
             );
         }
