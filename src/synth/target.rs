@@ -381,7 +381,11 @@ mod tests {
     fn noisy_view(
         target: &CalibrationTarget,
         seed: u64,
-    ) -> (StereoRig, IsometryMatrix3<f64>, crate::capture::GrayImage) {
+    ) -> (
+        StereoRig,
+        IsometryMatrix3<f64>,
+        crate::camera::calibrate::TargetImage,
+    ) {
         let rig = super::super::default_rig().unwrap();
         let params = TargetParams::default();
         let mut rng = StdRng::seed_from_u64(seed);
@@ -390,10 +394,10 @@ mod tests {
         let mut img = render_target(&rig.cam0, target, &pose);
         raster::gaussian_blur(&mut img, w, h, params.blur_px);
         let pixels = to_gray8(&img, params.noise_dn, seed);
-        let image = crate::capture::GrayImage {
+        let image = crate::camera::calibrate::TargetImage {
             width: w as u32,
             height: h as u32,
-            data: pixels,
+            pixels,
         };
         (rig, pose, image)
     }

@@ -53,9 +53,8 @@ use rayon::prelude::*;
 
 use super::target::CalibrationTarget;
 use super::{Camera, StereoRig};
-use crate::capture::GrayImage;
 
-pub use detect::{TargetObservation, detect_target, refine_tag_corners};
+pub use detect::{TargetImage, TargetObservation, detect_target, refine_tag_corners};
 pub use report::{CalibrationReport, DropReason, ViewReport, ViewUse};
 
 use extrinsics::{StereoView, calibrate_extrinsics, common_points};
@@ -254,7 +253,7 @@ pub fn calibrate_stereo(
     pairs: &[ImagePair],
     target: &CalibrationTarget,
     params: &CalibrateParams,
-    load: &(dyn Fn(&Path) -> Result<GrayImage, String> + Sync),
+    load: &(dyn Fn(&Path) -> Result<TargetImage, String> + Sync),
     progress: &(dyn Fn() + Sync),
 ) -> Result<CalibrationReport, CalibrateError> {
     params.validate()?;
@@ -291,7 +290,7 @@ pub fn calibrate_stereo(
                     message,
                 })?;
                 if (image.width, image.height) != size
-                    || image.data.len() != image.width as usize * image.height as usize
+                    || image.pixels.len() != image.width as usize * image.height as usize
                 {
                     return Err(CalibrateError::ImageSize {
                         path: path.clone(),
