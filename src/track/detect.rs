@@ -457,7 +457,15 @@ impl MarkerDetector {
             self.threshold(image, &scaled, small, roi, windows.map(|w| w.0));
             let mut out = Vec::new();
             let measuring = Measuring::new(image, &scaled, None, 0);
-            self.components(measuring, roi, centres, &mut out, rejected, &mut by_rim);
+            self.components(
+                measuring,
+                roi,
+                windows.map(|w| w.0),
+                centres,
+                &mut out,
+                rejected,
+                &mut by_rim,
+            );
             out
         } else {
             self.detect_two_scales(
@@ -583,6 +591,7 @@ impl MarkerDetector {
                     ..Measuring::new(image, &scaled, Some(&half), coarse_min_px)
                 },
                 half_roi,
+                half_windows.as_ref(),
                 coarse_centres.as_deref(),
                 &mut coarse,
                 None,
@@ -621,6 +630,7 @@ impl MarkerDetector {
         self.components(
             Measuring::new(image, &fine_params, None, 0),
             roi,
+            windows.map(|w| w.0),
             fine_centres.as_deref(),
             &mut fine,
             rejected,
@@ -639,10 +649,12 @@ impl MarkerDetector {
     /// The mask is read as runs of candidates along each row, joined to the runs they
     /// touch in the row above (union-find); a component's pixels are then gathered run by
     /// run. Components are measured in the raster order of their first pixel.
+    #[allow(clippy::too_many_arguments)]
     fn components(
         &mut self,
         measuring: Measuring,
         (x0, y0, x1, _): (usize, usize, usize, usize),
+        windows: Option<&SearchWindows>,
         centres: Option<&[Rect]>,
         out: &mut Vec<Detection>,
         mut rejected: Option<&mut Vec<Rejection>>,
@@ -736,6 +748,7 @@ impl MarkerDetector {
         let grid = centres.map(RectGrid::new);
         let measuring = Measuring {
             near: grid.as_ref(),
+            windows,
             ..measuring
         };
         if grid.is_some() {
@@ -1255,6 +1268,10 @@ struct Measuring<'a> {
     /// box, grown by the rim the centroid weighs ([`RIM_PX`]), meets none of them is not
     /// measured.
     near: Option<&'a RectGrid<'a>>,
+    /// The search windows the components were found in (in the grid of the components'
+    /// pixels), None: the whole region. A blob that reaches their border may be part of a
+    /// larger one beyond them ([`split_and_measure`]).
+    windows: Option<&'a SearchWindows>,
 }
 
 impl<'a> Measuring<'a> {
@@ -1274,6 +1291,7 @@ impl<'a> Measuring<'a> {
             min_px,
             min_diameter_px: 0.0,
             near: None,
+            windows: None,
         }
     }
 
@@ -1373,6 +1391,33 @@ fn split_and_measure(
         };
         match found {
             Ok(d) => {
+                // At half resolution, a blob longer than any dot that the search windows'
+                // border cuts may be a large dot and part of a band it touches beyond them
+                // (the mouth line beside a lip dot): measured whole, its centre lies
+                // between the two, where the whole image has one blob too large to be a
+                // dot, which splits. Its parts at a higher threshold first, as that
+                // blob's; the blob itself when no part is a dot. Only a blob too thin to
+                // be kept as a large dot ([`COARSE_MIN_ROUNDNESS`]), one that would be
+                // lost anyway: a rounder one is weighed against the small scale's blobs
+                // (`merge_scales`), and splitting those too lost a frame of cluttered's
+                // M100, a smudged dot at the mouth line.
+                if let (Some(half), Some(windows)) = (measuring.grid, measuring.windows)
+                    && d.diameter_px > params.elongated_max_length_px
+                    && d.roundness < COARSE_MIN_ROUNDNESS
+                    && !windows.hold_with_border(
+                        grid_box(pixels),
+                        (half.width as usize, half.height as usize),
+                    )
+                {
+                    let found_before = out.len();
+                    let next = (threshold as f64 * 1.6).ceil() as u32 + 1;
+                    if depth < 4 && next <= 255 {
+                        split_at(measuring, pixels, next, depth, out, rejected.as_deref_mut());
+                    }
+                    if out.len() > found_before {
+                        return;
+                    }
+                }
                 out.push(d);
                 return;
             }
@@ -1474,6 +1519,14 @@ fn split_and_measure(
 /// touches in cam0 makes a component 340 px long; at twice the dot, the upper half of a
 /// smudged dot a hair crosses was fitted as a dot and labeled 6.5 px off its marker).
 const RIM_MIN_BAND_LENGTH: f64 = 3.0;
+
+/// The box `(x0, y0, x1, y1)` (inclusive) of a set of pixels `(x, y, level)`.
+fn grid_box(pixels: &[(usize, usize, u8)]) -> (usize, usize, usize, usize) {
+    pixels.iter().fold(
+        (usize::MAX, usize::MAX, 0, 0),
+        |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
+    )
+}
 
 /// Two detections are the same dot when their centres and their diameters differ by at
 /// most this share of a diameter.
@@ -3026,6 +3079,67 @@ mod tests {
             ..Default::default()
         };
         assert!(detect_markers(&img, &strict).is_empty());
+    }
+
+    /// A dot 24 px across touching a band of shadow 7 px high that runs across the image
+    /// (the mouth line under a lip dot), on even skin.
+    fn dot_on_a_band(band_top: f64) -> (GrayImage, Point2<f64>) {
+        let (w, h) = (200u32, 120u32);
+        let (cx, cy, r) = (100.4, 50.3, 12.0);
+        let mut data = vec![0u8; (w * h) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let band = coverage(x, y, |_, py| py >= band_top && py < band_top + 7.0);
+                let dot = coverage(x, y, |px, py| (px - cx).hypot(py - cy) <= r);
+                let v = 150.0 - 40.0 * band;
+                data[(y * w + x) as usize] = (v + (30.0 - v) * dot).round() as u8;
+            }
+        }
+        let image = GrayImage {
+            width: w,
+            height: h,
+            data,
+        };
+        (image, Point2::new(cx, cy))
+    }
+
+    #[test]
+    fn a_dot_on_a_band_the_windows_cut_is_found_as_in_the_whole_image() {
+        // The band touches the dot's lower rim. In the whole image the two make one blob
+        // too large for a dot, which splits into the dot; a window around the dot cuts the
+        // band to a blob that, with the dot, may pass as one (its centre between the two).
+        // Windows at least 80 px wide, so that the cut band makes the blob thinner than a
+        // large dot (as a lip dot's windows cut the mouth line); in narrower ones the
+        // blob is round enough to be weighed against the small scale's ring of the dot,
+        // which is reported (its centre right, its diameter 5 px too large).
+        let params = DetectParams::default();
+        for band_top in [61.5, 62.3, 63.0] {
+            let (image, centre) = dot_on_a_band(band_top);
+            let mut detector = MarkerDetector::new();
+            let nearest = |found: &[Detection]| {
+                found
+                    .iter()
+                    .min_by(|a, b| {
+                        (a.centre_px - centre)
+                            .norm()
+                            .total_cmp(&(b.centre_px - centre).norm())
+                    })
+                    .cloned()
+            };
+            let whole = nearest(&detector.detect(&image, &params))
+                .expect("the dot is found in the whole image");
+            assert!((whole.centre_px - centre).norm() < 0.5, "{whole:?}");
+            for half in [40u32, 45, 50] {
+                let window = (100 - half, 50 - half, 100 + half, 50 + half);
+                let found = detector.detect_in_windows(&image, &params, &[window]);
+                let d = nearest(&found).expect("a detection in the window");
+                assert!(
+                    (d.centre_px - whole.centre_px).norm() < 0.5
+                        && (d.diameter_px - whole.diameter_px).abs() < 1.0,
+                    "band at {band_top}, window ±{half}: {d:?}, the whole image's {whole:?}"
+                );
+            }
+        }
     }
 
     #[test]

@@ -108,6 +108,24 @@ impl SearchWindows {
         }
     }
 
+    /// Whether the pixels `x0..x1` of row `y` all lie in one of the union's spans.
+    pub fn covers(&self, y: usize, x0: usize, x1: usize) -> bool {
+        self.row(y).iter().any(|&(a, b)| a <= x0 && x1 <= b)
+    }
+
+    /// Whether the box `(x0, y0, x1, y1)` (inclusive) grown by a pixel, within an image
+    /// of `width × height` pixels, lies in the union: a blob inside the box has no pixel
+    /// next to one the windows leave out (where nothing was looked for), so it cannot be
+    /// part of a larger blob beyond them.
+    pub fn hold_with_border(
+        &self,
+        (x0, y0, x1, y1): (usize, usize, usize, usize),
+        (width, height): (usize, usize),
+    ) -> bool {
+        let (a, b) = (x0.saturating_sub(1), (x1 + 2).min(width));
+        (y0.saturating_sub(1)..(y1 + 2).min(height)).all(|y| self.covers(y, a, b))
+    }
+
     /// Number of pixels in the union.
     pub fn area(&self) -> usize {
         self.bands
@@ -339,6 +357,24 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_box_is_held_when_its_border_lies_in_the_windows_or_off_the_image() {
+        // Two windows sharing an edge: rows 10..20 span 10..50, rows 20..30 span 10..30.
+        let w = SearchWindows::new(&[(10, 10, 30, 30), (30, 10, 50, 20)], (0, 0, 100, 100));
+        let image = (100, 100);
+        assert!(w.hold_with_border((11, 11, 28, 28), image));
+        // Grown by a pixel, it reaches row 30 or column 30 below row 20: outside.
+        assert!(!w.hold_with_border((11, 11, 28, 29), image));
+        assert!(!w.hold_with_border((11, 11, 29, 28), image));
+        // Across the shared edge, above row 19: inside.
+        assert!(w.hold_with_border((11, 11, 48, 18), image));
+        assert!(!w.hold_with_border((11, 11, 48, 19), image));
+        // The image's edges are no border: a window up to them holds a box that touches them.
+        let edge = SearchWindows::new(&[(0, 0, 20, 20)], (0, 0, 20, 20));
+        assert!(edge.hold_with_border((0, 0, 19, 19), (20, 20)));
+        assert!(!edge.hold_with_border((0, 0, 19, 19), (21, 20)));
     }
 
     #[test]
