@@ -6,6 +6,8 @@
 //!   the one error of a file and its line, the one error of a parameter out of range, the
 //!   stated size limits of every input, atomic writes, SMPTE timecode, the frame number
 //!   every stage and file shares.
+//! - [`gray_image`]: the 8-bit grey image every stage that reads pixels shares (the
+//!   capture's frames, the calibration's target images, the detector's input).
 //! - [`numeric`]: shared numerical kernels (sparse Cholesky, order statistics, small box-
 //!   and simplex-constrained QPs); the two-column name files (label and name maps) are
 //!   read by one private parser.
@@ -50,6 +52,7 @@ pub mod enhance;
 pub mod farm;
 pub mod file_error;
 pub mod frame_index;
+pub mod gray_image;
 pub mod lgi;
 pub mod limits;
 pub mod mesh;

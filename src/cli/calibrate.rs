@@ -4,9 +4,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use helmcap::camera::calibrate::{
-    CalibrateParams, CameraModel, ImagePair, TargetImage, calibrate_stereo,
-};
+use helmcap::camera::calibrate::{CalibrateParams, CameraModel, ImagePair, calibrate_stereo};
 use helmcap::camera::target::CalibrationTarget;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -87,11 +85,6 @@ pub fn run(args: CalibrateArgs) -> anyhow::Result<()> {
         // PNG, JPEG or TIFF by content; colour as Rec. 601 luma.
         helmcap::capture::read_gray(path, helmcap::capture::GrayConversion::Luma)
             .map_err(|e| e.message)
-            .map(|im| TargetImage {
-                width: im.width,
-                height: im.height,
-                pixels: im.data,
-            })
     };
     let start = Instant::now();
     let result = calibrate_stereo(&pairs, &target, &params, &load, &|| bar.inc(1));

@@ -384,7 +384,7 @@ mod tests {
     ) -> (
         StereoRig,
         IsometryMatrix3<f64>,
-        crate::camera::calibrate::TargetImage,
+        crate::gray_image::GrayImage,
     ) {
         let rig = super::super::default_rig().unwrap();
         let params = TargetParams::default();
@@ -394,10 +394,10 @@ mod tests {
         let mut img = render_target(&rig.cam0, target, &pose);
         raster::gaussian_blur(&mut img, w, h, params.blur_px);
         let pixels = to_gray8(&img, params.noise_dn, seed);
-        let image = crate::camera::calibrate::TargetImage {
+        let image = crate::gray_image::GrayImage {
             width: w as u32,
             height: h as u32,
-            pixels,
+            data: pixels,
         };
         (rig, pose, image)
     }

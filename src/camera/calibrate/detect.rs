@@ -7,17 +7,7 @@ use opencv::core::{Mat, Point2f, Size, TermCriteria, TermCriteria_Type, Vector};
 
 use super::super::target::{Aprilgrid, CalibrationTarget, Chessboard};
 use super::{CalibrateError, CalibrateParams, DropReason};
-
-/// An 8-bit grayscale image, row-major, as a loader hands it over.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct TargetImage {
-    /// Width, pixels.
-    pub width: u32,
-    /// Height, pixels.
-    pub height: u32,
-    /// `width × height` values, row by row.
-    pub pixels: Vec<u8>,
-}
+use crate::gray_image::GrayImage;
 
 /// Target points found in one image: point ids (see [`crate::camera::target`]) and pixels
 /// (OpenCV convention: pixel centres at integer coordinates).
@@ -35,7 +25,7 @@ pub struct TargetObservation {
 /// [`CalibrateError::OpenCv`] or [`CalibrateError::Failed`] when a detector fails to run
 /// (not when it finds nothing).
 pub fn detect_target(
-    image: &TargetImage,
+    image: &GrayImage,
     target: &CalibrationTarget,
     params: &CalibrateParams,
 ) -> Result<Result<TargetObservation, DropReason>, CalibrateError> {
@@ -50,7 +40,7 @@ pub fn detect_target(
 /// small in the image.
 fn check_view(
     obs: &TargetObservation,
-    image: &TargetImage,
+    image: &GrayImage,
     target: &CalibrationTarget,
     params: &CalibrateParams,
 ) -> Result<(), DropReason> {
@@ -99,7 +89,7 @@ fn check_view(
 
 /// Chessboard corners by OpenCV, refined to subpixel and put in canonical order.
 fn detect_chessboard(
-    image: &TargetImage,
+    image: &GrayImage,
     board: &Chessboard,
     params: &CalibrateParams,
 ) -> Result<Result<TargetObservation, DropReason>, CalibrateError> {
@@ -107,7 +97,7 @@ fn detect_chessboard(
         stage: "chessboard detection".into(),
         message: e.message,
     };
-    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.pixels)
+    let mat = Mat::new_rows_cols_with_data(image.height as i32, image.width as i32, &image.data)
         .map_err(cv)?;
     let pattern = Size::new(board.cols as i32, board.rows as i32);
     let mut corners = Vector::<Point2f>::new();
@@ -156,7 +146,7 @@ fn detect_chessboard(
 /// the black square at the board origin before corner 0 (rotated by a half turn
 /// otherwise).
 fn canonical_chessboard_order(
-    image: &TargetImage,
+    image: &GrayImage,
     board: &Chessboard,
     mut px: Vec<Point2<f64>>,
 ) -> Result<Vec<Point2<f64>>, DropReason> {
@@ -187,7 +177,7 @@ fn canonical_chessboard_order(
 }
 
 /// Mean intensity in a 5×5 window around a pixel, `None` when it leaves the image.
-fn mean_around(image: &TargetImage, p: Point2<f64>) -> Option<f64> {
+fn mean_around(image: &GrayImage, p: Point2<f64>) -> Option<f64> {
     let (x, y) = (p.x.round() as i64, p.y.round() as i64);
     let (w, h) = (i64::from(image.width), i64::from(image.height));
     if x < 2 || y < 2 || x + 2 >= w || y + 2 >= h {
@@ -196,7 +186,7 @@ fn mean_around(image: &TargetImage, p: Point2<f64>) -> Option<f64> {
     let mut sum = 0.0;
     for yy in y - 2..=y + 2 {
         for xx in x - 2..=x + 2 {
-            sum += f64::from(*image.pixels.get((yy * w + xx) as usize)?);
+            sum += f64::from(*image.data.get((yy * w + xx) as usize)?);
         }
     }
     Some(sum / 25.0)
@@ -204,7 +194,7 @@ fn mean_around(image: &TargetImage, p: Point2<f64>) -> Option<f64> {
 
 /// AprilTag grid corners: tag36h11 detections with ids on the grid, each corner refined.
 fn detect_aprilgrid(
-    image: &TargetImage,
+    image: &GrayImage,
     grid: &Aprilgrid,
     params: &CalibrateParams,
 ) -> Result<Result<TargetObservation, DropReason>, CalibrateError> {
@@ -218,7 +208,7 @@ fn detect_aprilgrid(
     for (dst, src) in at_image
         .as_slice_mut()
         .chunks_mut(stride)
-        .zip(image.pixels.chunks(w))
+        .zip(image.data.chunks(w))
     {
         dst[..w].copy_from_slice(src);
     }
@@ -270,7 +260,7 @@ fn detect_aprilgrid(
 /// it, sampled only over the third of each edge nearest to the corner. An edge point is the
 /// gradient-weighted centroid of the intensity profile across the edge. A corner whose
 /// fit fails (too few edge samples) keeps the library's position.
-pub fn refine_tag_corners(image: &TargetImage, corners: &[Point2<f64>; 4]) -> [Point2<f64>; 4] {
+pub fn refine_tag_corners(image: &GrayImage, corners: &[Point2<f64>; 4]) -> [Point2<f64>; 4] {
     let mut out = *corners;
     for k in 0..4 {
         let p = corners[k];
@@ -298,7 +288,7 @@ struct Line {
 /// Fits a line to the edge from corner `a` toward corner `b`, using edge points found
 /// between 8 % and 35 % of the way (away from the corner's blur, near enough to be nearly
 /// straight).
-fn fit_edge_near(image: &TargetImage, a: Point2<f64>, b: Point2<f64>) -> Option<Line> {
+fn fit_edge_near(image: &GrayImage, a: Point2<f64>, b: Point2<f64>) -> Option<Line> {
     let d = b - a;
     let len = d.norm();
     if len < 12.0 {
@@ -320,7 +310,8 @@ fn fit_edge_near(image: &TargetImage, a: Point2<f64>, b: Point2<f64>) -> Option<
         let (mut wsum, mut osum) = (0.0, 0.0);
         for j in -steps..=steps {
             let o = f64::from(j) * 0.25;
-            let v = bilinear(image, centre + normal * o)?;
+            let p = centre + normal * o;
+            let v = image.bilinear(p.x, p.y)?;
             if let Some(pv) = prev {
                 let g = (v - pv).abs();
                 wsum += g;
@@ -361,28 +352,6 @@ fn intersect(a: &Line, b: &Line) -> Option<Point2<f64>> {
         .map(|inv| Point2::from(inv * Vector2::new(a.c, b.c)))
 }
 
-/// Bilinear intensity at a point (pixel centres at integers), `None` outside.
-fn bilinear(image: &TargetImage, p: Point2<f64>) -> Option<f64> {
-    let (x0, y0) = (p.x.floor(), p.y.floor());
-    if x0 < 0.0
-        || y0 < 0.0
-        || x0 + 1.0 >= f64::from(image.width)
-        || y0 + 1.0 >= f64::from(image.height)
-    {
-        return None;
-    }
-    let (fx, fy) = (p.x - x0, p.y - y0);
-    let w = image.width as usize;
-    let i = y0 as usize * w + x0 as usize;
-    let g = |j: usize| image.pixels.get(j).map(|&v| f64::from(v));
-    Some(
-        g(i)? * (1.0 - fx) * (1.0 - fy)
-            + g(i + 1)? * fx * (1.0 - fy)
-            + g(i + w)? * (1.0 - fx) * fy
-            + g(i + w + 1)? * fx * fy,
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -390,10 +359,10 @@ mod tests {
     #[test]
     fn views_with_collinear_or_tiny_targets_are_degenerate() {
         let target = CalibrationTarget::parse("aprilgrid:6x6:30:0.3").unwrap();
-        let image = TargetImage {
+        let image = GrayImage {
             width: 1000,
             height: 1000,
-            pixels: vec![0; 1_000_000],
+            data: vec![0; 1_000_000],
         };
         let params = CalibrateParams::default();
         // One row of tags: 24 collinear-ish corners (two rows of points, 30 mm apart over

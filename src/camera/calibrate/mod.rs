@@ -53,8 +53,9 @@ use rayon::prelude::*;
 
 use super::target::CalibrationTarget;
 use super::{Camera, StereoRig};
+use crate::gray_image::GrayImage;
 
-pub use detect::{TargetImage, TargetObservation, detect_target, refine_tag_corners};
+pub use detect::{TargetObservation, detect_target, refine_tag_corners};
 pub use report::{CalibrationReport, DropReason, ViewReport, ViewUse};
 
 use extrinsics::{StereoView, calibrate_extrinsics, common_points};
@@ -253,7 +254,7 @@ pub fn calibrate_stereo(
     pairs: &[ImagePair],
     target: &CalibrationTarget,
     params: &CalibrateParams,
-    load: &(dyn Fn(&Path) -> Result<TargetImage, String> + Sync),
+    load: &(dyn Fn(&Path) -> Result<GrayImage, String> + Sync),
     progress: &(dyn Fn() + Sync),
 ) -> Result<CalibrationReport, CalibrateError> {
     params.validate()?;
@@ -290,7 +291,7 @@ pub fn calibrate_stereo(
                     message,
                 })?;
                 if (image.width, image.height) != size
-                    || image.pixels.len() != image.width as usize * image.height as usize
+                    || image.data.len() != image.width as usize * image.height as usize
                 {
                     return Err(CalibrateError::ImageSize {
                         path: path.clone(),
