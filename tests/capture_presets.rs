@@ -525,8 +525,10 @@ fn a_silhouette_dot_tracked_on_a_merged_blob_is_not_followed_onto_the_mole() {
 /// A `lip-press` set-up (made after the preset and every rule, never tuned on) with wrong
 /// labels left (run with `--ignored`; README, "A lip dot told from its mole by what stood
 /// beside them"): M040, a dot at the silhouette that neither camera sees (edge-on), is
-/// labeled in 14 frames on a mole 3 px from it in cam0 and 6 px in cam1, both images of
-/// the mole as thin as the dot's would be. Its M054 and M102, once taken on moles for 55
+/// labeled in one frame on a mole 3 px from it in cam0 and 6 px in cam1, both images of
+/// the mole as thin as the dot's would be (the second of the two in a row that confirm it
+/// as a new track; in 14 frames before a marker back after a gap was confirmed again until
+/// its track held, `Labeler::confirm_new_tracks`). Its M054 and M102, once taken on moles for 55
 /// and 11 frames, are now labeled right (see
 /// `lip_dots_back_beside_their_mole_or_merged_with_it_are_not_taken_on_it`).
 const LIP_PRESS_KNOWN_WRONG: [(u64, usize); 1] = [(1501, 120)];

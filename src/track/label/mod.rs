@@ -74,7 +74,8 @@
 //! a blob after a few frames), and the far lobe is remembered ([`Labeler::in_far_lobe`]).
 //! A marker never labeled since the acquisition is labeled only once found in
 //! [`CONFIRM_FRAMES`] frames in a row ([`Labeler::confirm_new_tracks`]; the acquisition's
-//! frame counts, looked at with the acquisition's labels as the neighbours), and only on a
+//! frame counts, looked at with the acquisition's labels as the neighbours), as is a marker
+//! back after a gap before its track held ([`HELD_FRAMES`] labels in a row), and only on a
 //! blob about the size of its neighbours' dots in one camera at least, and not larger
 //! than theirs in both ([`LabelParams::never_seen_min_relative_size`],
 //! [`LabelParams::never_seen_max_relative_size`]); a marker back after a long gap, only
@@ -120,6 +121,11 @@ pub const WINDOWS_KEEP_SHARE: f64 = 0.8;
 /// In how many frames in a row a marker never labeled since the acquisition must be found
 /// before it is labeled (see `Labeler::confirm_new_tracks`).
 pub const CONFIRM_FRAMES: usize = 2;
+
+/// In how many frames in a row a marker must have been labeled for its track to have held
+/// ([`Track::held`]): until then a marker back after a gap is confirmed as a new one (see
+/// `Labeler::confirm_new_tracks`).
+pub const HELD_FRAMES: usize = 3;
 
 /// Labeling settings.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
@@ -630,9 +636,17 @@ struct Track {
     /// when that was at a dot's lobe (see `Labeler::back_on_its_merged_blob`); None
     /// otherwise.
     lobe_blob_px: Option<[f64; 2]>,
-    /// While never labeled since the acquisition: the frames in a row in which the marker
-    /// would have been labeled (see [`Labeler::confirm_new_tracks`]).
+    /// While never labeled since the acquisition, or back after a gap before it was
+    /// [`Track::held`]: the frames in a row in which the marker would have been labeled
+    /// (see [`Labeler::confirm_new_tracks`]).
     confirming: usize,
+    /// Frames in a row in which the marker was labeled, up to the last one (0: not labeled
+    /// in the last frame).
+    run: usize,
+    /// The marker was labeled by the acquisition, or in [`HELD_FRAMES`] frames in a row,
+    /// since the acquisition: a track that held, which a marker back after a gap resumes
+    /// without confirmation.
+    held: bool,
     /// Labeled frames in a row whose blobs were smaller than a first sighting may be
     /// ([`Labeler::smaller_than_a_whole_dot`]).
     small_blob_frames: usize,
@@ -1215,7 +1229,14 @@ impl Labeler {
             if !s {
                 track.velocity = Vector3::zeros();
                 track.frames_since_seen = track.frames_since_seen.map(|n| n + steps);
+                track.run = 0;
             } else {
+                track.run = if track.frames_since_seen == Some(0) && steps == 1 {
+                    track.run + 1
+                } else {
+                    1
+                };
+                track.held |= stats.acquiring || track.run >= HELD_FRAMES;
                 track.frames_since_seen = Some(0);
             }
         }
@@ -1296,24 +1317,36 @@ impl Labeler {
     /// A marker the acquisition did not find (out of view, hidden, or wiped off before the
     /// take) is looked for where its neighbours put it, with nothing else to go by: a mole
     /// of a dot's size there may pass every check now and then (wiped-moles seed 5's M110
-    /// in a single frame; seed 7's M107 in runs of one to eight, which this does not
-    /// stop), a dot that comes into view frame after frame. A new track is confirmed
-    /// before it is reported, as trackers confirm tracks by M of N detections; a marker
-    /// labeled before keeps no such delay, nor do the acquisition's labels.
+    /// in a single frame; seed 7's M107 in runs of one to eight), a dot that comes into
+    /// view frame after frame. A new track is confirmed before it is reported, as trackers
+    /// confirm tracks by M of N detections. A marker back after a gap is confirmed alike
+    /// until its track has held ([`Track::held`]: labeled by the acquisition, or in
+    /// [`HELD_FRAMES`] frames in a row): a mole where a marker seen edge-on all take long
+    /// is (lip-press seed 1501's M040, seen 83° from its normal, 1.6 px wide, with a mole
+    /// as foreshortened as the dot 3-5 px from its place), confirmed once, came back in
+    /// single frames 14 times. A marker whose track held keeps no such delay, nor do the
+    /// acquisition's labels.
     fn confirm_new_tracks(&mut self, labels: &mut Vec<Label>) -> usize {
         let mut found = vec![false; self.tracks.len()];
         for l in labels.iter() {
             found[l.marker] = true;
         }
+        let unconfirmed = |t: &Track| {
+            t.frames_since_seen.is_none() || (t.frames_since_seen != Some(0) && !t.held)
+        };
         for (track, &f) in self.tracks.iter_mut().zip(&found) {
-            if track.frames_since_seen.is_none() {
-                track.confirming = if f { track.confirming + 1 } else { 0 };
-            }
+            track.confirming = if !unconfirmed(track) {
+                0
+            } else if f {
+                track.confirming + 1
+            } else {
+                0
+            };
         }
         let before = labels.len();
         labels.retain(|l| {
             let t = &self.tracks[l.marker];
-            t.frames_since_seen.is_some() || t.confirming >= CONFIRM_FRAMES
+            !unconfirmed(t) || t.confirming >= CONFIRM_FRAMES
         });
         before - labels.len()
     }
@@ -1418,6 +1451,8 @@ fn fresh_tracks(neutral: &[Point3<f64>]) -> Vec<Track> {
             lobe_px: 0.0,
             lobe_blob_px: None,
             confirming: 0,
+            run: 0,
+            held: false,
             small_blob_frames: 0,
             size_over_expected: None,
             contrast_dn: None,
