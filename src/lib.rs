@@ -36,7 +36,7 @@
 //! - [`take`]: a take assembled from one `TakeSpec` (dataset, profile, stages, sinks).
 //! - [`farm`], [`report`]: take manifests, farm job bundles and merging; the dailies
 //!   report.
-//! - [`bench`]: benchmark harnesses (the solve methods' accuracy and speed) and the host's
+//! - [`bench`](mod@bench): benchmark harnesses (the solve methods' accuracy and speed) and the host's
 //!   figures for them (CPU time, resident memory, load average).
 
 pub mod align;

@@ -3,7 +3,7 @@
 //!
 //! # CSV
 //! Header `Timecode,BlendShapeCount,` then the 52 ARKit curves in Apple's order
-//! ([`ARKIT_NAMES`](super::ARKIT_NAMES), with a capital first letter as the app writes
+//! ([`ARKIT_NAMES`], with a capital first letter as the app writes
 //! them: `EyeBlinkLeft`, ...), then `HeadYaw,HeadPitch,HeadRoll,LeftEyeYaw,LeftEyePitch,
 //! LeftEyeRoll,RightEyeYaw,RightEyePitch,RightEyeRoll`. `BlendShapeCount` is 61 (52 curves
 //! + 9 angles). `Timecode` is `HH:MM:SS:FF.mmm`: the timecode frame, then the position

@@ -82,7 +82,7 @@ pub enum NameMapError {
 ///
 /// Several shapes may map to one target (the ICT-FaceKit's `browInnerUp_L` and
 /// `browInnerUp_R` both to ARKit's `browInnerUp`): the target's value is then the mean of
-/// their weights. A shape absent from the map is *unmapped*: [`NameMap::apply`] reports
+/// their weights. A shape absent from the map is *unmapped*: [`ResolvedMap::apply`] reports
 /// it, it is not dropped silently.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NameMap {

@@ -324,7 +324,7 @@ impl TripleTable {
     /// [`TripleTable::fill_used`], with sign codes that mark a value only when the query
     /// is more than `tol_mm` from the triple's plane (`|value| · inv_area2[triple]`, see
     /// [`triple_inv_area2`]). With these codes the [`TetScan`] pre-test passes exactly
-    /// the tetrahedra [`TripleTable::near`] accepts with the same `tol_mm`.
+    /// the tetrahedra `TripleTable::near` (the tests' reference) accepts with the same `tol_mm`.
     pub fn fill_used_coded_near(
         &mut self,
         points: &[Point3<f64>],
@@ -419,7 +419,7 @@ impl TripleTable {
         w.map(|x| x * inv)
     }
 
-    /// The distance bound of [`TripleTable::near`] for weights `w` of the tetrahedron with
+    /// The distance bound of `TripleTable::near` for weights `w` of the tetrahedron with
     /// face triples `faces`: the largest distance of the query outside one of its face
     /// planes (0 inside).
     #[inline]

@@ -6,7 +6,7 @@
 //!   weights `α*_ij`, compute actor blendshapes `Bᵢ` that reproduce the examples and keep
 //!   the template's controller semantics. Without examples it is deformation transfer
 //!   (Sumner & Popović 2004, in the gradient form of Botsch et al. 2006).
-//! - [`register`]: optimal-step non-rigid ICP (Amberg et al. 2007, as described in
+//! - [`register`](mod@register): optimal-step non-rigid ICP (Amberg et al. 2007, as described in
 //!   Kazlauskaite 2015 §3.3.2) that brings a scan of any topology into the template's
 //!   topology, so it can serve as `B₀` or as an example pose.
 //! - [`from_lgi`]: rig generation with local geometric indexing (Cong et al. 2019 §7): the

@@ -106,7 +106,7 @@ pub struct ViewReport {
     pub stereo: ViewUse,
 }
 
-/// The result of [`calibrate_stereo`].
+/// The result of [`calibrate_stereo`](super::calibrate_stereo).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationReport {
     /// The calibrated rig; its `rms_px` is [`Self::rms_stereo_px`].

@@ -14,7 +14,7 @@
 //! # Frame index and gaps
 //! The first stereo frame is index 0; each next one advances by the number of frame
 //! intervals between their capture times (rounded, at least 1), so a frame a camera failed
-//! to deliver leaves a hole in the indices and is counted in [`FrameSource::gaps`]: every
+//! to deliver leaves a hole in the indices and is counted in [`FrameSource::gaps`](crate::capture::FrameSource::gaps): every
 //! index up to the last one is either delivered or counted.
 //!
 //! # Timecode
@@ -25,7 +25,7 @@
 //!
 //! # A camera that stops
 //! A camera that reports its device gone, or delivers nothing for
-//! [`LiveParams::camera_lost_ms`], ends the source with [`CaptureError::CameraLost`] naming
+//! [`LiveParams::camera_lost_ms`], ends the source with [`CaptureError::CameraLost`](crate::capture::CaptureError::CameraLost) naming
 //! it. One camera alone cannot triangulate, so going on would record a take the pipeline
 //! cannot use while looking healthy; the operator is better served by a clear stop, with
 //! everything up to the last stereo frame recorded and valid, and can restart at once.

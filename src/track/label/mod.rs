@@ -123,7 +123,7 @@ pub const WINDOWS_KEEP_SHARE: f64 = 0.8;
 pub const CONFIRM_FRAMES: usize = 2;
 
 /// In how many frames in a row a marker must have been labeled for its track to have held
-/// ([`Track::held`]): until then a marker back after a gap is confirmed as a new one (see
+/// (`Track::held`): until then a marker back after a gap is confirmed as a new one (see
 /// `Labeler::confirm_new_tracks`).
 pub const HELD_FRAMES: usize = 3;
 
