@@ -1994,10 +1994,7 @@ fn measure_image_blob(
     {
         return Err(RejectReason::NotRound);
     }
-    let (bx0, by0, bx1, by1) = pixels.iter().fold(
-        (usize::MAX, usize::MAX, 0, 0),
-        |(a, b, c, d), &(x, y, _)| (a.min(x), b.min(y), c.max(x), d.max(y)),
-    );
+    let (bx0, by0, bx1, by1) = grid_box(pixels);
     let (bx0, by0) = (bx0 * s, by0 * s);
     let (bx1, by1) = ((bx1 * s + s - 1).min(w - 1), (by1 * s + s - 1).min(h - 1));
     // Background ring: the border of the box grown by 3 pixels.

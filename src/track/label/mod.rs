@@ -1324,7 +1324,7 @@ impl Labeler {
     /// [`HELD_FRAMES`] frames in a row): a mole where a marker seen edge-on all take long
     /// is (lip-press seed 1501's M040, seen 83° from its normal, 1.6 px wide, with a mole
     /// as foreshortened as the dot 3-5 px from its place), confirmed once, came back in
-    /// single frames 14 times. A marker whose track held keeps no such delay, nor do the
+    /// single frames 13 times. A marker whose track held keeps no such delay, nor do the
     /// acquisition's labels.
     fn confirm_new_tracks(&mut self, labels: &mut Vec<Label>) -> usize {
         let mut found = vec![false; self.tracks.len()];
