@@ -3265,8 +3265,8 @@ fn a_dot_one_camera_cannot_see_is_not_taken_on_the_mole_beside_it() {
 #[test]
 fn a_marker_back_before_its_track_held_is_confirmed_again() {
     // Markers hidden all take long (dots seen edge-on), each with a blob of a dot's size
-    // and shape 0.4 mm from its place (a mole as foreshortened as the dot would be) that
-    // the detector finds in two frames in a row, then in single frames only: the pair
+    // and shape 0.4 mm from its place (a mole that nothing in its blob tells from the dot)
+    // that the detector finds in two frames in a row, then in single frames only: the pair
     // confirms a new track, which never holds; the single frames after it are refused.
     // Markers tracked from the acquisition on and hidden for five frames are labeled in
     // their first frame back: their tracks held.
