@@ -351,9 +351,70 @@ fn a_replay_that_labels_nothing_says_what_to_check() {
     assert!(!stdout.contains("no marker labeled"), "{stdout}");
 }
 
+/// `helmcap detect` takes the acquisition's whole search in its one frame: on cluttered skin,
+/// a profile whose per-frame shares of the search (one triple, one hypothesis) cannot
+/// decide in one frame labels the frame as the session's own profile does (a replay goes
+/// on with the search over the next frames; `detect` has none).
+#[test]
+fn detect_takes_the_acquisitions_whole_search_in_its_one_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("session");
+    synth(&session, 2, &["--preset", "cluttered"]);
+    let profile = std::fs::read_to_string(session.join("profile.toml")).unwrap();
+    assert!(!profile.contains("[label]"), "{profile}");
+    let tight_profile = dir.path().join("tight.toml");
+    std::fs::write(
+        &tight_profile,
+        format!(
+            "{profile}\n[label]\nacquire_iterations_per_frame = 1\nacquire_hypotheses_per_frame = 1\n"
+        ),
+    )
+    .unwrap();
+    let labels = |extra: &[&str], out: &str| -> String {
+        let out_dir = dir.path().join(out);
+        let mut args = vec![
+            "detect",
+            session.to_str().unwrap(),
+            "--frame",
+            "1",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        common::ok(&helmcap(&args));
+        std::fs::read_to_string(out_dir.join("detections.csv")).unwrap()
+    };
+    // The labeled rows (a marker's name in the last column).
+    let labeled = |csv: String| -> Vec<String> {
+        csv.lines()
+            .skip(1)
+            .filter(|l| !l.ends_with(','))
+            .map(str::to_string)
+            .collect()
+    };
+    let own = labeled(labels(&[], "own"));
+    assert!(
+        own.len() >= 100,
+        "{} detections labeled with the session's profile",
+        own.len()
+    );
+    let tight = labeled(labels(
+        &["--profile", tight_profile.to_str().unwrap()],
+        "tight",
+    ));
+    assert!(
+        tight == own,
+        "{} detections labeled with the least per-frame shares of the search, {} with the \
+         session's profile",
+        tight.len(),
+        own.len()
+    );
+}
+
 /// `helmcap detect` on a frame of a session: both annotated images and a CSV whose labeled
 /// detections lie on their own markers' dots, at least 95 % of the markers detectable in
-/// both cameras labeled in both; `--print-profile` with the session prints the profile the session names.
+/// both cameras labeled in both; `--print-profile` with the session prints the profile the
+/// session names.
 #[test]
 fn detect_labels_a_session_frame_and_prints_its_profile() {
     let dir = tempfile::tempdir().unwrap();

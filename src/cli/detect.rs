@@ -11,7 +11,8 @@ use helmcap::dataset::DatasetSpec;
 use helmcap::frame_index::FrameIndex;
 use helmcap::take::TakeDataset;
 use helmcap::track::{
-    CaptureProfile, DetectParams, Detection, LabeledFrame, Labeler, MarkerDetector, Rejection,
+    CaptureProfile, DetectParams, Detection, LabelParams, LabeledFrame, Labeler, MarkerDetector,
+    Rejection,
 };
 use opencv::core::{Mat, Point, Scalar};
 use opencv::prelude::*;
@@ -110,11 +111,20 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 args.markers.as_deref(),
             )?;
             names = take.layout.markers.iter().map(|m| m.name.clone()).collect();
+            // One frame and no stream to keep up with: the acquisition's whole search at
+            // once, where a replay spreads it over a few frames so that the stream never
+            // waits (a profile's per-frame share, set for a rig's frame time, need not
+            // decide in one frame, and `detect` has no next frame to go on in).
+            let params = LabelParams {
+                acquire_iterations_per_frame: profile.label_params().acquire_iterations,
+                acquire_hypotheses_per_frame: usize::MAX,
+                ..profile.label_params()
+            };
             let mut labeler = Labeler::new(
                 rig.clone(),
                 &take.layout,
                 take.neutral_markers.clone(),
-                profile.label_params(),
+                params,
             )?;
             // As `replay` and `live` do: the face may be in any of the actor's expressions.
             labeler.set_expression_templates(take.layout.expression_templates(&take.dataset));

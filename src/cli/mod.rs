@@ -74,7 +74,8 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Marker detection (and labeling, with a calibration) on one image, a stereo pair or a
     /// session frame -> annotated PNGs and a CSV. Labels are an acquisition's on that frame
-    /// alone, as at the start of a replay, not those of tracking through the take.
+    /// alone, as at the start of a replay (its whole search at once, where a replay spreads
+    /// it over a few frames), not those of tracking through the take.
     Detect(detect::DetectArgs),
     /// Stereo calibration from image pairs of a target -> calibration YAML.
     Calibrate(calibrate::CalibrateArgs),
