@@ -1764,12 +1764,10 @@ fn intersect_ranges(a: &[(usize, usize)], b: &[(usize, usize)]) -> Vec<(usize, u
 /// Calls `f` with each 8-connected part of `pixels` (its pixels `(x, y, level)`, levels
 /// non-zero).
 fn for_each_part(pixels: &[(usize, usize, u8)], mut f: impl FnMut(&[(usize, usize, u8)])) {
-    let Some((bx0, by0, bx1, by1)) = pixels.iter().fold(None, |acc, &(x, y, _)| {
-        let (a, b, c, d) = acc.unwrap_or((x, y, x, y));
-        Some((a.min(x), b.min(y), c.max(x), d.max(y)))
-    }) else {
+    if pixels.is_empty() {
         return;
-    };
+    }
+    let (bx0, by0, bx1, by1) = grid_box(pixels);
     // The box with a border of empty pixels, so that every pixel of the set has all its
     // eight neighbours in the grid: pixel (x, y) at `(x − bx0 + 1, y − by0 + 1)`.
     let gw = bx1 - bx0 + 3;
@@ -1824,13 +1822,8 @@ fn split_at(
         return;
     }
     for_each_part(&kept, |part| {
-        let (x0, y0, x1, y1) =
-            part.iter()
-                .fold((u32::MAX, u32::MAX, 0, 0), |(a, b, c, d), &(x, y, _)| {
-                    let (x, y) = (x as u32, y as u32);
-                    (a.min(x), b.min(y), c.max(x), d.max(y))
-                });
-        if !measuring.near_centres((x0, y0, x1, y1)) {
+        let (x0, y0, x1, y1) = grid_box(part);
+        if !measuring.near_centres((x0 as u32, y0 as u32, x1 as u32, y1 as u32)) {
             return;
         }
         split_and_measure(
