@@ -148,6 +148,81 @@ fn two_discs_half_apart(spread: f64) -> Option<f64> {
     Some(0.025 * ((k - 1) as f64 + t))
 }
 
+/// How much larger than the dot (its equivalent radius, `√(ab)` of its ellipse's
+/// semi-axes) a disc merged with it must read for [`dot_beside_a_larger_disc`]: a disc of
+/// about the dot's size is [`two_discs_half_apart`]'s case. (The thresholded blob reads
+/// each disc about a pixel smaller than it is: on the 640×480 cluttered set-up a 14 px
+/// mole beside a 9 px dot read 1.3 times the dot's radius.)
+const LARGER_DISC_MIN_RATIO: f64 = 1.15;
+
+/// How much farther apart than touching (pixels) [`dot_beside_a_larger_disc`] still takes
+/// a dot and a disc to be one blob: the threshold leaves out each one's rim, so the
+/// moments read both smaller than they are, not their distance.
+const LARGER_DISC_TOUCH_SLACK_PX: f64 = 2.0;
+
+/// A blob whose second moments are `major²` along `axis` and `minor²` across it
+/// (pixels²) read as a dot of covariance `expected` merged with a larger disc
+/// ([`LARGER_DISC_MIN_RATIO`]) whose centre lies along `axis`: the axis and the distance of
+/// the dot's centre from the blob's centroid, pixels. None when no such disc explains the
+/// moments, or when it would hold the dot or lie apart from it.
+///
+/// The union is taken as the two shapes side by side, their overlap counted in both: with
+/// the dot's area `A_d = 4π√det Σ_d` and the disc's `A_m = πr²` (covariance `r²/4·I`),
+/// `A = A_d + A_m`, the moment across the axis is `(A_d Σ_d,vv + A_m r²/4) / A`, which
+/// gives `r` (it grows with `r` beyond the dot's size: bisection), and along it
+/// `(A_d Σ_d,uu + A_m r²/4) / A + A_d A_m D² / A²`, which gives the centres' distance `D`;
+/// the dot's centre lies `A_m D / A` from the centroid, away from the disc. Against the
+/// exact union of a 4.3 px dot and a disc 1.3-2.1 times its radius, overlapping it by up to
+/// a third of the dot, the dot's offset comes within 0.5 px (test
+/// `a_dot_beside_a_larger_disc_is_found_at_its_offset`): the overlap counted twice weighs
+/// both centres alike. Which end of the axis the dot is at is for the prediction to tell
+/// ([`Labeler::far_lobe`]).
+fn dot_beside_a_larger_disc(
+    axis: Vector2<f64>,
+    major: f64,
+    minor: f64,
+    expected: &Matrix2<f64>,
+) -> Option<(Vector2<f64>, f64)> {
+    let across = Vector2::new(-axis.y, axis.x);
+    let (m_u, m_v) = (major * major, minor * minor);
+    let (d_uu, d_vv) = (
+        (axis.transpose() * expected * axis)[0],
+        (across.transpose() * expected * across)[0],
+    );
+    let det = expected.determinant();
+    if !(det > 0.0 && m_u.is_finite() && m_v.is_finite()) {
+        return None;
+    }
+    let area_dot = 4.0 * std::f64::consts::PI * det.sqrt();
+    let r_dot = 2.0 * det.sqrt().sqrt();
+    let across_moment = |r: f64| {
+        let area_disc = std::f64::consts::PI * r * r;
+        (area_dot * d_vv + area_disc * r * r / 4.0) / (area_dot + area_disc)
+    };
+    let (mut lo, mut hi) = (LARGER_DISC_MIN_RATIO * r_dot, 8.0 * r_dot);
+    if across_moment(lo) > m_v || across_moment(hi) < m_v {
+        return None;
+    }
+    for _ in 0..50 {
+        let mid = 0.5 * (lo + hi);
+        if across_moment(mid) > m_v {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let r = 0.5 * (lo + hi);
+    let area_disc = std::f64::consts::PI * r * r;
+    let area = area_dot + area_disc;
+    let spread = m_u - (area_dot * d_uu + area_disc * r * r / 4.0) / area;
+    let apart = (spread * area * area / (area_dot * area_disc))
+        .max(0.0)
+        .sqrt();
+    // The dot's rim lies outside the disc, and the two touch.
+    (apart > r - r_dot && apart <= r + r_dot + LARGER_DISC_TOUCH_SLACK_PX)
+        .then_some((axis, area_disc * apart / area))
+}
+
 /// On how many consecutive labels a marker's blob must have had about the same lobes
 /// before its far lobe is refused (see `Labeler::in_far_lobe`): a dot merged with a mole
 /// stays so, a lip dot squeezed or blurred for a frame does not.
@@ -853,6 +928,18 @@ impl Labeler {
         Some(self.neutral[i] + median)
     }
 
+    /// How far the neighbours' displacements disagree with the one they give marker `i`
+    /// ([`Labeler::head_from_neighbours`]): the largest distance of a labeled neighbour's
+    /// displacement from it, mm. None where they give none.
+    pub(super) fn neighbours_disagreement_mm(&self, i: usize) -> Option<f64> {
+        let guess = self.head_from_neighbours(i)? - self.neutral[i];
+        self.neighbours[i]
+            .iter()
+            .filter(|&&(j, _)| self.tracks[j].frames_since_seen == Some(0))
+            .map(|&(j, _)| (self.tracks[j].head - self.neutral[j] - guess).norm())
+            .reduce(f64::max)
+    }
+
     /// Pixels of a cam0 point in both cameras (None behind a camera or outside its image).
     pub(super) fn project_both(&self, point: &Point3<f64>) -> [Option<Point2<f64>>; 2] {
         let p0 = self
@@ -1180,7 +1267,11 @@ impl Labeler {
 
     /// The direction `u` (unit) and half the distance (pixels) of the lobes of blob `det`
     /// in camera `c`, when its second moments are those of a dot at `point` with the
-    /// skin's `normal` merged with another ([`Labeler::far_lobe`]).
+    /// skin's `normal` merged with another ([`Labeler::far_lobe`]); failing that, merged
+    /// with a larger disc ([`dot_beside_a_larger_disc`]): then the "lobes" lie the dot's
+    /// distance from the centroid either side of it, the dot's where the prediction leans,
+    /// the far one a point past the disc's centre (which lies nearer the centroid), standing
+    /// in for the disc wherever the far lobe is looked at.
     pub(super) fn lobe_split(
         &self,
         point: &Point3<f64>,
@@ -1206,7 +1297,16 @@ impl Labeler {
         let (l1, l2) = (eig.eigenvalues[k], eig.eigenvalues[1 - k]);
         let u = eig.eigenvectors.column(k).into_owned();
         let dot_along = 4.0 * (u.transpose() * expected * u)[0].max(0.0).sqrt();
-        let half_apart = dot_along * two_discs_half_apart(l1.max(0.0).sqrt() / dot_along)?;
+        // A dot merged with a disc of another size than its own: beside a larger one.
+        let larger = || {
+            dot_beside_a_larger_disc(axis, major, minor, &expected)
+                .filter(|&(_, offset)| offset >= LOBE_MIN_OFFSET_RATIO * dot_major)
+        };
+        let Some(half_apart) =
+            two_discs_half_apart(l1.max(0.0).sqrt() / dot_along).map(|s| s * dot_along)
+        else {
+            return larger();
+        };
         // Across the lobes' line the union of two discs is at least as wide as one disc;
         // a smear is narrower (`LOBE_MIN_ACROSS_RATIO`).
         let v = eig.eigenvectors.column(1 - k).into_owned();
@@ -1215,6 +1315,7 @@ impl Labeler {
             && l2 <= 0.5 * l1
             && across >= LOBE_MIN_ACROSS_RATIO)
             .then_some((u, half_apart))
+            .or_else(larger)
     }
 
     /// Whether detections `det` at `point`, predicted by `pr`, read in both cameras as a
@@ -1291,7 +1392,14 @@ impl Labeler {
     /// skin's normal, for a first sighting of a marker last labeled on a worn dot's smear
     /// ([`Labeler::back_on_its_smear`]), for a first sighting whose
     /// far lobe is, in both cameras, within the reach of a rival beyond the gate (as in
-    /// `Labeler::label_pass`) of where the neighbours put the marker, and for a marker
+    /// `Labeler::label_pass`) of where the neighbours put the marker, that reach narrowed
+    /// to a rival's inside the gate (`ambiguity_ratio · e + ambiguity_margin_px`) with `e`
+    /// grown by how far the neighbours' own displacements disagree with that place
+    /// ([`Labeler::neighbours_disagreement_mm`]): where they all moved alike (a forehead
+    /// dot beside a mole of its size on the 640×480 cluttered set-up, its far lobe 6 px
+    /// off, never labeled before) the place is no guess; across a moving lip or jaw it is
+    /// (lip-press seed 901's M054 and wiped-moles seed 1301's M102, put 17 and 30 px off,
+    /// were taken at a mole's lobe with the narrower reach alone). And none for a marker
     /// tracked at a lobe whose blob shows no lobes in a camera but is still one with the
     /// blob beside the dot there ([`Labeler::still_merged`]).
     ///
@@ -1350,8 +1458,28 @@ impl Labeler {
             }
             let reach = (p.ambiguity_ratio * e + p.ambiguity_margin_px)
                 .clamp(pr.gate_px, BEYOND_GATE * pr.gate_px);
+            // A first sighting's far lobe is a rival within `ambiguity_ratio · (e + s) +
+            // ambiguity_margin_px` (at most `reach`), `s` how far the neighbours'
+            // displacements disagree with the place they give the marker
+            // ([`Labeler::neighbours_disagreement_mm`], in pixels at its depth): as a rival
+            // blob within the gate is, the place being a guess that far.
+            let rival_reach = match self.neighbours_disagreement_mm(i) {
+                Some(spread) if pr.first_sighting => {
+                    let px_per_mm = p.gate_3d_factor * pr.gate_px / pr.gate_mm.max(1e-9);
+                    let guess_px = spread * px_per_mm;
+                    (p.ambiguity_ratio * (e + guess_px) + p.ambiguity_margin_px).min(reach)
+                }
+                _ => reach,
+            };
             far_in_reach[c] = (
-                far.is_some_and(|far| (x[c] + far - q).norm() <= reach),
+                far.is_some_and(|far| {
+                    let d = (x[c] + far - q).norm();
+                    if rival_reach < reach {
+                        d < rival_reach
+                    } else {
+                        d <= reach
+                    }
+                }),
                 reach,
             );
             far_lobes[c] = far;
@@ -2245,8 +2373,70 @@ pub(super) enum Returning {
 
 #[cfg(test)]
 mod tests {
-    use super::{TWO_DISCS_SPREAD, singular_values, two_discs_half_apart};
-    use nalgebra::{Matrix2x3, Rotation2, Rotation3, Vector3};
+    use super::{
+        TWO_DISCS_SPREAD, dot_beside_a_larger_disc, singular_values, two_discs_half_apart,
+    };
+    use nalgebra::{Matrix2, Matrix2x3, Rotation2, Rotation3, Vector2, Vector3};
+
+    /// The union of a disc of radius `r_dot` at the origin and one of radius `r_disc` at
+    /// `(apart, 0)`, by counting the points of a grid of step 0.02 px: the centroid's `x`
+    /// (the dot's offset from it, negated) and the second moments along and across the
+    /// line through the centres.
+    fn union_moments(r_dot: f64, r_disc: f64, apart: f64) -> (f64, f64, f64) {
+        let h = 0.02;
+        let (x0, x1) = (-r_dot - 1.0, apart + r_disc + 1.0);
+        let half_height = r_dot.max(r_disc) + 1.0;
+        let (mut n, mut sx, mut sxx, mut syy) = (0.0, 0.0, 0.0, 0.0);
+        let mut x = x0;
+        while x < x1 {
+            let mut y = -half_height;
+            while y < half_height {
+                if x * x + y * y <= r_dot * r_dot || (x - apart).powi(2) + y * y <= r_disc * r_disc
+                {
+                    n += 1.0;
+                    sx += x;
+                    sxx += x * x;
+                    syy += y * y;
+                }
+                y += h;
+            }
+            x += h;
+        }
+        let cx = sx / n;
+        (cx, sxx / n - cx * cx, syy / n)
+    }
+
+    #[test]
+    fn a_dot_beside_a_larger_disc_is_found_at_its_offset() {
+        // A 4.3 px dot (a 2.6 mm dot through the 640x480 rig, seen face-on) merged with a
+        // disc 1.3-2.1 times its radius, touching it or overlapping it by up to a third of
+        // the dot: the dot's offset from the union's centroid within 0.5 px, along the
+        // line through the two; nothing read from a lone dot, two discs of the dot's
+        // size, a disc apart from the dot, or a dot inside the disc.
+        let r_dot = 4.3;
+        let expected = Matrix2::identity() * (r_dot * r_dot / 4.0);
+        let axis = Vector2::new(1.0, 0.0);
+        for (r_disc, apart) in [(5.5, 7.0), (5.6, 9.9), (7.0, 8.7), (7.0, 11.0), (9.0, 10.0)] {
+            let (cx, along, across) = union_moments(r_dot, r_disc, apart);
+            let (u, offset) =
+                dot_beside_a_larger_disc(axis, along.sqrt(), across.sqrt(), &expected)
+                    .unwrap_or_else(|| panic!("disc {r_disc} px {apart} px away: not read"));
+            assert_eq!(u, axis);
+            assert!(
+                (offset - cx).abs() <= 0.5,
+                "disc {r_disc} px {apart} px away: offset {offset:.2} px, truth {cx:.2}"
+            );
+        }
+        let read = |r_disc: f64, apart: f64| {
+            let (_, along, across) = union_moments(r_dot, r_disc, apart);
+            dot_beside_a_larger_disc(axis, along.sqrt(), across.sqrt(), &expected)
+        };
+        assert_eq!(read(r_dot, 0.0), None, "a lone dot");
+        assert_eq!(read(r_dot, 6.0), None, "two dots");
+        assert_eq!(read(9.0, 1.0), None, "a dot inside a disc");
+        // Apart (two blobs to the detector): the moments of the two together.
+        assert_eq!(read(7.0, 16.0), None, "a disc apart from the dot");
+    }
 
     /// The singular values do not change under rotations on either side.
     #[test]
